@@ -1,0 +1,128 @@
+"""Input validation shared by every cuboidlib module.
+
+Each check raises ``ValueError`` (or ``TypeError`` for a non-tensor) with a message that names the
+argument, what was expected and what was received, so that bad input never turns into a silent
+wrong answer or a stack trace from deep inside torch.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+
+__all__ = [
+    "as_float_tensor",
+    "check_shape",
+    "check_finite",
+    "check_unit_vectors",
+    "check_positive",
+    "check_same_leading",
+]
+
+
+def as_float_tensor(x, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
+    """Return ``x`` as a floating-point tensor (numpy arrays and lists are converted).
+
+    Integer input is converted to the default float dtype; existing float tensors keep their dtype
+    (and gradient history) unless ``dtype`` is given.
+    """
+    if isinstance(x, torch.Tensor):
+        t = x
+    else:
+        try:
+            t = torch.as_tensor(x)
+        except Exception as exc:  # noqa: BLE001 - re-raised with a clear message
+            raise TypeError(f"{name} must be a tensor or array-like of numbers, got {type(x).__name__}") from exc
+    if not t.is_floating_point():
+        t = t.to(torch.get_default_dtype())
+    if dtype is not None or device is not None:
+        t = t.to(dtype=dtype or t.dtype, device=device or t.device)
+    return t
+
+
+def _fmt_shape(spec: Sequence) -> str:
+    return "(" + ", ".join(str(s) for s in spec) + ")"
+
+
+def check_shape(t: torch.Tensor, spec: Sequence, name: str) -> dict:
+    """Check ``t.shape`` against ``spec`` and return the sizes bound to symbolic names.
+
+    ``spec`` holds ints (exact sizes) and strings (symbolic sizes such as ``"B"``, ``"N"``); a
+    symbol that appears twice must have the same size both times. Example::
+
+        sizes = check_shape(points, ("B", "N", 3), "points")   # -> {"B": 4, "N": 1024}
+    """
+    if t.dim() != len(spec):
+        raise ValueError(
+            f"{name} must have shape {_fmt_shape(spec)} ({len(spec)} dimensions), "
+            f"got shape {tuple(t.shape)} ({t.dim()} dimensions)"
+        )
+    sizes: dict = {}
+    for axis, (want, got) in enumerate(zip(spec, t.shape)):
+        if isinstance(want, int):
+            if got != want:
+                raise ValueError(
+                    f"{name} must have shape {_fmt_shape(spec)}, got {tuple(t.shape)} "
+                    f"(dimension {axis} is {got}, expected {want})"
+                )
+        else:
+            if want in sizes and sizes[want] != got:
+                raise ValueError(
+                    f"{name} must have shape {_fmt_shape(spec)}, got {tuple(t.shape)} "
+                    f"(size {want} is both {sizes[want]} and {got})"
+                )
+            sizes[want] = got
+    return sizes
+
+
+def check_same_leading(named: dict, sizes: dict, what: str) -> None:
+    """Check that symbolic sizes found for several arguments agree.
+
+    ``named`` maps argument names to the size dicts returned by :func:`check_shape`; every symbol
+    shared by two arguments must have the same value. ``sizes`` is updated in place with all symbols.
+    """
+    for arg, s in named.items():
+        for key, value in s.items():
+            if key in sizes and sizes[key] != value:
+                owner = next(a for a, d in named.items() if d.get(key) == sizes[key])
+                raise ValueError(
+                    f"{what}: size {key} of {arg} is {value} but {key} of {owner} is {sizes[key]}; "
+                    "they must agree"
+                )
+            sizes[key] = value
+
+
+def check_finite(t: torch.Tensor, name: str) -> None:
+    """Raise if ``t`` holds NaN or infinite values, saying how many and where the first one is."""
+    bad = ~torch.isfinite(t.detach())
+    if bad.any():
+        idx = tuple(int(i) for i in torch.nonzero(bad)[0])
+        raise ValueError(
+            f"{name} contains {int(bad.sum())} NaN or infinite value(s) (first at index {idx}); "
+            "clean or drop those entries first"
+        )
+
+
+def check_unit_vectors(t: torch.Tensor, name: str, tol: float = 1e-3) -> None:
+    """Raise if the last axis of ``t`` is not unit length within ``tol`` (zero vectors named)."""
+    norms = torch.linalg.vector_norm(t.detach(), dim=-1)
+    if (norms < 1e-12).any():
+        idx = tuple(int(i) for i in torch.nonzero(norms < 1e-12)[0])
+        raise ValueError(f"{name} contains zero-length vectors (first at index {idx}); unit vectors are required")
+    err = (norms - 1).abs()
+    if (err > tol).any():
+        idx = tuple(int(i) for i in torch.nonzero(err > tol)[0])
+        raise ValueError(
+            f"{name} must hold unit vectors along the last axis; the vector at index {idx} has "
+            f"length {float(norms[idx]):.6g} (normalise it first, e.g. x / x.norm(dim=-1, keepdim=True))"
+        )
+
+
+def check_positive(t: torch.Tensor, name: str, allow_zero: bool = False) -> None:
+    """Raise if any entry of ``t`` is negative (or zero unless ``allow_zero``)."""
+    bad = (t.detach() < 0) if allow_zero else (t.detach() <= 0)
+    if bad.any():
+        idx = tuple(int(i) for i in torch.nonzero(bad)[0])
+        rule = "non-negative" if allow_zero else "positive"
+        raise ValueError(f"{name} must be {rule}; the entry at index {idx} is {float(t.detach()[idx]):.6g}")
