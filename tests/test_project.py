@@ -1,0 +1,120 @@
+"""Checks of the project itself: install metadata, the committed notebooks and README.
+
+nbval runs every notebook (see pyproject's pytest options); these tests check what nbval cannot:
+that each committed notebook was executed top to bottom from a fresh kernel, that it keeps its
+outputs, and that it has the course's form.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+# PyPI name -> conda-forge name, where they differ.
+CONDA_NAMES = {"torch": "pytorch-cpu"}
+
+
+def _requirement_map(requirements: list[str]) -> dict[str, str]:
+    out = {}
+    for req in requirements:
+        m = re.fullmatch(r"\s*([A-Za-z0-9_.\-]+)\s*(.*?)\s*", req)
+        assert m, f"cannot parse requirement {req!r}"
+        out[m.group(1).lower()] = m.group(2).replace(" ", "")
+    return out
+
+
+def _environment_packages() -> dict[str, str]:
+    """Conda dependencies of environment.yml as {name: version spec} (python, pip and the pip block left out)."""
+    packages, in_deps = {}, False
+    for line in (ROOT / "environment.yml").read_text().splitlines():
+        line = line.split("#", 1)[0].rstrip()
+        if not line:
+            continue
+        if not line.startswith(" "):
+            in_deps = line.startswith("dependencies:")
+            continue
+        m = re.fullmatch(r"  - ([A-Za-z0-9_.\-]+)\s*(\S*)", line)  # top-level list items only
+        if in_deps and m and m.group(1) not in {"python", "pip"}:
+            packages[m.group(1).lower()] = m.group(2)
+    return packages
+
+
+def test_environment_yml_lists_the_same_packages_as_pyproject():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    wanted = _requirement_map(project["dependencies"] + project["optional-dependencies"]["dev"])
+    wanted = {CONDA_NAMES.get(name, name): spec for name, spec in wanted.items()}
+    assert _environment_packages() == wanted
+
+
+def test_environment_yml_installs_the_package_itself():
+    text = (ROOT / "environment.yml").read_text()
+    assert re.search(r"^\s+- -e \.\[dev\]\s*$", text, re.M), "environment.yml must pip-install -e .[dev]"
+    assert "conda-forge" in text
+
+
+def test_readme_has_install_open_and_test_commands_for_ci():
+    readme = (ROOT / "README.md").read_text()
+    for marker in ("<!-- ci:install -->", "<!-- ci:test -->"):
+        assert marker in readme, f"README.md lost the {marker} marker that .ci/run reads"
+    assert "jupyter lab notebooks/" in readme
+    assert "torch==" in readme, "the install command must pin torch so pip takes the CPU wheel"
+
+
+def test_course_has_lessons():
+    assert NOTEBOOKS, "notebooks/ holds no lesson"
+
+
+def test_readme_lists_every_lesson():
+    readme = (ROOT / "README.md").read_text()
+    for nb in NOTEBOOKS:
+        assert f"notebooks/{nb.name}" in readme, f"README.md does not list {nb.name}"
+
+
+def _cells(nb_path: Path) -> list[dict]:
+    return json.loads(nb_path.read_text())["cells"]
+
+
+def _source(cell: dict) -> str:
+    src = cell["source"]
+    return src if isinstance(src, str) else "".join(src)
+
+
+@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_was_executed_in_order_from_a_fresh_kernel(nb_path):
+    code = [c for c in _cells(nb_path) if c["cell_type"] == "code"]
+    counts = [c.get("execution_count") for c in code]
+    assert counts == list(range(1, len(code) + 1)), (
+        f"{nb_path.name}: execution counts {counts} are not 1, 2, 3, ...; re-run it top to bottom from a "
+        "fresh kernel: jupyter nbconvert --to notebook --execute --inplace " + f"notebooks/{nb_path.name}"
+    )
+    errors = [o for c in code for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    assert not errors, f"{nb_path.name}: committed with error outputs"
+    assert any(c.get("outputs") for c in code), f"{nb_path.name}: committed without outputs"
+
+
+@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_has_the_course_form(nb_path):
+    cells = _cells(nb_path)
+    first = _source(cells[0]).lower()
+    assert cells[0]["cell_type"] == "markdown" and "you will" in first, (
+        f"{nb_path.name}: the first cell must say what the learner will be able to do"
+    )
+    headings = [_source(c).lower() for c in cells if c["cell_type"] == "markdown"]
+    assert any(h.lstrip().startswith("## summary") for h in headings), f"{nb_path.name}: no '## Summary' section"
+    assert any(h.lstrip().startswith("## exercises") for h in headings), f"{nb_path.name}: no '## Exercises' section"
+    code = "\n".join(_source(c) for c in cells if c["cell_type"] == "code")
+    assert "sys.path" not in code, f"{nb_path.name}: import cuboidlib as an installed package, not via sys.path"
+    assert "# NBVAL_CHECK_OUTPUT" in code, f"{nb_path.name}: no cell's output is checked by nbval"
+    assert re.search(r"^\s*assert ", code, re.M), f"{nb_path.name}: the lesson's claims are not checked by asserts"
+
+
+@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_stays_small(nb_path):
+    assert nb_path.stat().st_size < 5 * 2**20, f"{nb_path.name} is larger than 5 MiB"
