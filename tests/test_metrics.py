@@ -1,0 +1,170 @@
+import math
+
+import pytest
+import torch
+
+from cuboidlib.metrics import (
+    ChamferConvention,
+    cuboid_chamfer_distance,
+    mean_iou,
+    normal_consistency,
+    number_of_existing_cuboids,
+    transfer_part_labels,
+)
+
+ID = torch.tensor([[[1.0, 0.0, 0.0, 0.0]]])
+
+
+def unit_cube(half=0.5):
+    return torch.zeros(1, 1, 3), ID.clone(), torch.full((1, 1, 3), half)
+
+
+# ---------------------------------------------------------------- Chamfer distance
+
+
+def test_chamfer_far_point_matches_the_analytic_value():
+    # All input points at p = (2, 0, 0); one cube of half size a = 0.5 at the origin.
+    # points -> cuboids: the nearest surface point is (a, 0, 0): (2 - a)^2 = 2.25.
+    # cuboids -> points: E|s - p|^2 = E|s|^2 + |p|^2 (E[s] = 0), and E|s|^2 = a^2 + 2 a^2 / 3 = 5/12.
+    points = torch.tensor([[[2.0, 0.0, 0.0]]]).expand(1, 64, 3)
+    g = torch.Generator().manual_seed(0)
+    total = cuboid_chamfer_distance(points, *unit_cube(), convention=ChamferConvention(n_samples=20000), generator=g)
+    assert total.shape == (1,)
+    assert float(total) == pytest.approx(2.25 + 4 + 5 / 12, abs=0.03)
+
+
+def test_chamfer_of_points_on_the_surface_is_small_and_decreases_with_samples():
+    from cuboidlib.geometry import sample_cuboid_surfaces
+
+    g = torch.Generator().manual_seed(1)
+    points = sample_cuboid_surfaces(*unit_cube(), 2048, generator=g).points
+    coarse = cuboid_chamfer_distance(points, *unit_cube(), convention=ChamferConvention(n_samples=256), generator=g)
+    fine = cuboid_chamfer_distance(points, *unit_cube(), convention=ChamferConvention(n_samples=8192), generator=g)
+    assert float(fine) < float(coarse) < 1e-2
+
+
+def test_chamfer_conventions_relate_as_documented():
+    points = torch.tensor([[[2.0, 0.0, 0.0]]]).expand(1, 8, 3)
+    cube = (torch.zeros(1, 1, 3), ID.clone(), torch.full((1, 1, 3), 1e-4))  # nearly a point at the origin
+    def cd(**kw):
+        g = torch.Generator().manual_seed(3)
+        return float(cuboid_chamfer_distance(points, *cube, convention=ChamferConvention(n_samples=64, **kw), generator=g))
+
+    assert cd() == pytest.approx(2 * 4.0, rel=1e-3)  # squared L2, both directions summed
+    assert cd(norm="l2") == pytest.approx(2 * 2.0, rel=1e-3)
+    assert cd(norm="l1") == pytest.approx(2 * 2.0, rel=1e-3)  # the offset is along one axis
+    assert cd(directions="mean") == pytest.approx(4.0, rel=1e-3)
+    assert cd(scale=1000) == pytest.approx(8000.0, rel=1e-3)
+
+
+def test_chamfer_ignores_cuboids_that_do_not_exist():
+    points = torch.tensor([[[2.0, 0.0, 0.0]]]).expand(1, 16, 3)
+    centers = torch.tensor([[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]])
+    quats = ID.expand(1, 2, 4).clone()
+    half = torch.full((1, 2, 3), 0.01)
+    g = torch.Generator().manual_seed(0)
+    both = cuboid_chamfer_distance(points, centers, quats, half, convention=ChamferConvention(n_samples=512), generator=g)
+    only_far = cuboid_chamfer_distance(
+        points, centers, quats, half, exists=torch.tensor([[False, True]]),
+        convention=ChamferConvention(n_samples=512), generator=g,
+    )
+    assert float(only_far) < 1e-3 < float(both)
+
+
+def test_convention_describe_states_everything():
+    text = ChamferConvention(scale=1000).describe()
+    for word in ("squared L2", "mean", "sum", "x1000", "4096"):
+        assert word in text
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"norm": "l3"}, "norm"), ({"directions": "max"}, "directions"), ({"scale": 0}, "scale"), ({"n_samples": 0}, "n_samples")],
+)
+def test_bad_conventions_are_rejected(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ChamferConvention(**kwargs)
+
+
+def test_chamfer_rejects_bad_points():
+    with pytest.raises(ValueError, match="points"):
+        cuboid_chamfer_distance(torch.zeros(4, 3), *unit_cube())
+
+
+# ---------------------------------------------------------------- normal consistency
+
+
+def _face_centre_points(n=200):
+    """Points near the centres of the +x and +y faces of the unit cube, with their normals."""
+    g = torch.Generator().manual_seed(0)
+    uv = (torch.rand(n, 2, generator=g) - 0.5) * 0.4
+    px = torch.stack([torch.full((n,), 0.5), uv[:, 0], uv[:, 1]], dim=1)
+    py = torch.stack([uv[:, 0], torch.full((n,), 0.5), uv[:, 1]], dim=1)
+    nx = torch.tensor([1.0, 0, 0]).expand(n, 3)
+    ny = torch.tensor([0, 1.0, 0]).expand(n, 3)
+    return torch.cat([px, py])[None], torch.cat([nx, ny])[None]
+
+
+def test_normal_consistency_is_one_for_matching_normals_of_either_sign():
+    points, normals = _face_centre_points()
+    g = torch.Generator().manual_seed(0)
+    assert float(normal_consistency(points, normals, *unit_cube(), generator=g)) == pytest.approx(1.0, abs=1e-6)
+    assert float(normal_consistency(points, -normals, *unit_cube(), generator=g)) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_normal_consistency_of_perpendicular_normals_is_zero_and_random_is_about_half():
+    points, normals = _face_centre_points()
+    g = torch.Generator().manual_seed(0)
+    perpendicular = torch.roll(normals, 1, dims=-1)  # +x -> +y and +y -> +z: both perpendicular to the face
+    assert float(normal_consistency(points, perpendicular, *unit_cube(), generator=g)) == pytest.approx(0.0, abs=1e-6)
+    random = torch.nn.functional.normalize(torch.randn(points.shape, generator=g), dim=-1)
+    assert float(normal_consistency(points, random, *unit_cube(), generator=g)) == pytest.approx(0.5, abs=0.06)
+
+
+def test_normal_consistency_rejects_mismatched_normals():
+    points, normals = _face_centre_points()
+    with pytest.raises(ValueError, match="normals"):
+        normal_consistency(points, normals[:, :10], *unit_cube())
+
+
+# ---------------------------------------------------------------- N_AC, label transfer, mIoU
+
+
+def test_number_of_existing_cuboids():
+    exists = torch.tensor([[True, False, True], [True, True, True]])
+    assert float(number_of_existing_cuboids(exists)) == pytest.approx(2.5)
+    with pytest.raises(ValueError, match=r"\(B, M\)"):
+        number_of_existing_cuboids(torch.ones(3, dtype=torch.bool))
+
+
+def test_transfer_part_labels_takes_the_majority_part_per_cuboid():
+    seg = torch.tensor([[0, 0, 0, 1, 1, 2], [0, 1, 1, 1, 2, 2]])
+    gt = torch.tensor([[1, 1, 0, 0, 0, 1], [1, 0, 0, 1, 1, 1]])
+    # cuboid 0: parts [1, 1, 0, 1] -> 1; cuboid 1: [0, 0, 0, 0, 1] -> 0; cuboid 2: [1, 1, 1] -> 1; cuboid 3: none.
+    assert transfer_part_labels(seg, gt, num_cuboids=4, num_parts=2).tolist() == [1, 0, 1, -1]
+
+
+def test_transfer_part_labels_rejects_bad_input():
+    with pytest.raises(ValueError, match="same shape"):
+        transfer_part_labels(torch.zeros(2, 3, dtype=torch.long), torch.zeros(2, 4, dtype=torch.long), 2, 2)
+    with pytest.raises(ValueError, match="segmentation indices"):
+        transfer_part_labels(torch.full((1, 3), 5), torch.zeros(1, 3, dtype=torch.long), 2, 2)
+    with pytest.raises(ValueError, match="integer"):
+        transfer_part_labels(torch.zeros(1, 3), torch.zeros(1, 3, dtype=torch.long), 2, 2)
+
+
+def test_mean_iou_by_hand():
+    pred = torch.tensor([[0, 0, 1, 1], [1, 1, 1, 0]])
+    gt = torch.tensor([[0, 1, 1, 1], [1, 1, 0, 0]])
+    # label 0: intersection 1 + 1 = 2, union 2 + 2 = 4 -> 0.5; label 1: intersection 2 + 2 = 4, union 3 + 3 = 6.
+    assert mean_iou(pred, gt, num_parts=2) == pytest.approx((0.5 + 4 / 6) / 2)
+    # per shape: shape 0: label 0: 1/2, label 1: 2/3; shape 1: label 0: 1/2, label 1: 2/3.
+    assert mean_iou(pred, gt, num_parts=2, per_shape=True) == pytest.approx((0.5 + 2 / 3) / 2)
+    assert mean_iou(gt, gt, num_parts=2) == 1.0
+
+
+def test_mean_iou_counts_unlabelled_predictions_as_wrong_and_absent_labels_per_shape_as_one():
+    gt = torch.tensor([[0, 0, 0, 0]])
+    assert mean_iou(torch.tensor([[0, 0, -1, -1]]), gt, num_parts=2) == pytest.approx(0.5)
+    assert mean_iou(torch.tensor([[0, 0, 0, 0]]), gt, num_parts=2, per_shape=True) == 1.0
+    assert math.isclose(mean_iou(torch.tensor([[1, 1, 1, 1]]), gt, num_parts=2), 0.0)
