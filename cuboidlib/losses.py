@@ -9,15 +9,28 @@ Shapes: the allocation W (the paper's W_{m,n}) is a tensor of shape (B, N, M) wh
 
 from __future__ import annotations
 
+import math
+from dataclasses import asdict, dataclass, fields
+
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_positive
+from .distance import chamfer_distance_to_cuboids, nearest_surface_distance, point_to_cuboid_distance
 
 __all__ = [
     "allocation_portions",
+    "reconstruction_loss",
+    "nearest_cuboid_allocation",
+    "allocation_weighted_centers",
     "compactness_loss",
     "l1_penalty",
     "l2_penalty",
+    "existence_targets",
+    "existence_loss",
+    "kl_divergence",
+    "LossConfig",
+    "LossTerms",
+    "total_loss",
 ]
 
 
@@ -47,6 +60,55 @@ def _check_portions(w, name: str = "w") -> torch.Tensor:
     check_finite(w, name)
     check_positive(w, name, allow_zero=True)
     return w
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Reconstruction loss: Sec. 3.4.1, Eq. (4)
+#
+# L_recons = (1/N) sum_n sum_m W_{m,n} d(p_n, C_m): the distance of every point to every cuboid, weighted by
+# the soft allocation of the segmentation branch. d is the normal-aware distance of Eq. (5)
+# (cuboidlib.distance.point_to_cuboid_distance); the ablations swap it for the nearest-surface distance
+# (Table 5) or swap W for a hard nearest-cuboid allocation (P2C-Dis, Table 4).
+# ---------------------------------------------------------------------------------------------------------
+
+
+def reconstruction_loss(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """Allocation-weighted point-to-cuboid distance, L_recons of Eq. (4), one value per shape.
+
+    W: (B, N, M) allocation (rows sum to 1); d: (B, N, M) point-to-cuboid distances d(p_n, C_m).
+    Returns (B,): (1/N) sum_n sum_m W[b, n, m] d[b, n, m].
+    """
+    W = as_float_tensor(W, "W")
+    d = as_float_tensor(d, "d")
+    if W.dim() != 3 or W.shape != d.shape:
+        raise ValueError(
+            f"W and d must both have shape (B, N, M); got W {tuple(W.shape)} and d {tuple(d.shape)}"
+        )
+    if W.shape[1] == 0:
+        raise ValueError("W has no points (N = 0); at least one point is needed")
+    return (W * d).sum(dim=-1).mean(dim=-1)
+
+
+def nearest_cuboid_allocation(d: torch.Tensor) -> torch.Tensor:
+    """Hard allocation of every point to its closest cuboid, W_{m,n} = [m = argmin_k d(p_n, C_k)].
+
+    The P2C-Dis variant of Table 4, which removes the segmentation branch. d: (B, N, M) distances.
+    Returns (B, N, M) one-hot float (no gradient flows through the choice).
+    """
+    d = as_float_tensor(d, "d")
+    if d.dim() != 3:
+        raise ValueError(f"d must have shape (B, N, M), got {tuple(d.shape)}")
+    return torch.nn.functional.one_hot(d.detach().argmin(dim=-1), d.shape[-1]).to(d.dtype)
+
+
+def allocation_weighted_centers(W: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Cuboid centres from the allocation, c_m = sum_n W_{m,n} p_n / (sum_n W_{m,n} + 1).
+
+    The authors' public code places every cuboid here in all losses instead of at its predicted
+    translation t_m (the paper uses t_m). The +1 keeps empty cuboids finite (pulled to the origin).
+    W: (B, N, M); points: (B, N, 3). Returns (B, M, 3).
+    """
+    return torch.einsum("bnm,bnc->bmc", W, points) / (W.sum(dim=1)[..., None] + 1)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -111,3 +173,185 @@ def l2_penalty(w: torch.Tensor) -> torch.Tensor:
     """
     w = _check_portions(w)
     return (w * w).sum(dim=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Cuboid existence loss: Sec. 3.4.3, Eq. (7)
+#
+# The segmentation decides which cuboids exist: delta^gt_m = [w_m > eps_ext], and the abstraction branch's
+# existence prediction delta_m learns it by binary cross-entropy. The target is a constant (no gradient).
+# ---------------------------------------------------------------------------------------------------------
+
+
+def existence_targets(w: torch.Tensor, eps_ext: float = 0.05, min_points: float | None = None,
+                      num_points: int | None = None) -> torch.Tensor:
+    """Existence ground truth delta^gt_m = [w_m > eps_ext] (Sec. 3.4.3), detached, as floats in {0, 1}.
+
+    w: (..., M) allocation portions. Returns (..., M). The paper thresholds the portion (eps_ext = 0.05);
+    the authors' public code thresholds the number of points instead, N w_m > min_points (24): pass
+    ``min_points`` together with ``num_points`` = N for that variant.
+    """
+    w = _check_portions(w)
+    if min_points is None:
+        if not 0 <= eps_ext < 1:
+            raise ValueError(f"eps_ext must lie in [0, 1), got {eps_ext}")
+        return (w.detach() > eps_ext).to(w.dtype)
+    if num_points is None or num_points < 1:
+        raise ValueError("min_points needs num_points, the number N of points per shape")
+    return (w.detach() * num_points > min_points).to(w.dtype)
+
+
+def existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy between predicted existence and its targets, L_exist of Eq. (7).
+
+    exist_logits: (B, M) logits of delta_m (delta_m = sigmoid(logit)); targets: (B, M) in {0, 1}.
+    Returns (B,): -(1/M) sum_m [t log delta_m + (1 - t) log(1 - delta_m)], computed from the logits
+    for numerical stability (the same value as Eq. (7) on probabilities).
+    """
+    exist_logits = as_float_tensor(exist_logits, "exist_logits")
+    targets = as_float_tensor(targets, "targets").to(exist_logits)
+    if exist_logits.dim() != 2 or exist_logits.shape != targets.shape:
+        raise ValueError(
+            f"exist_logits and targets must both have shape (B, M); got {tuple(exist_logits.shape)} "
+            f"and {tuple(targets.shape)}"
+        )
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(exist_logits, targets, reduction="none")
+    return bce.mean(dim=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Latent code KL-divergence loss: Sec. 3.4.4, Eq. (8)
+# ---------------------------------------------------------------------------------------------------------
+
+
+def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+    """KL(N(mu, diag(exp(logvar))) || N(0, I)), L_KL-div of Eq. (8), one value per shape.
+
+    mu, logvar: (B, K) mean and log-variance of the latent code (the paper writes sigma_k for the
+    log-variance). Returns (B,): (1/2) sum_k [exp(logvar_k) - (1 + logvar_k) + mu_k^2].
+    """
+    mu = as_float_tensor(mu, "mu")
+    logvar = as_float_tensor(logvar, "logvar").to(mu)
+    if mu.dim() != 2 or mu.shape != logvar.shape:
+        raise ValueError(f"mu and logvar must both have shape (B, K); got {tuple(mu.shape)} and {tuple(logvar.shape)}")
+    return 0.5 * (logvar.exp() - (1 + logvar) + mu.square()).sum(dim=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Total loss: Sec. 3.4.5, Eq. (9), with the ablation variants and the authors' public-code choices as options
+# ---------------------------------------------------------------------------------------------------------
+
+DISTANCES = ("normal", "nearest_surface", "chamfer")
+ALLOCATIONS = ("segmentation", "nearest_cuboid")
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Weights and choices of the total loss L = L_recons + l1 L_compact + l2 L_exist + l3 L_KL (Eq. 9).
+
+    Paper defaults: lambda_compact (lambda_1) = 0.1, lambda_exist (lambda_2) = 0.01, lambda_kl
+    (lambda_3) = 6e-6, sigma_s = 0.05, eps_sps = 0.01, eps_ext = 0.05.
+
+    Ablations (Sec. 4.3):
+      distance: "normal" (Eq. 5, default), "nearest_surface" (Table 5's "Distance" column) or
+        "chamfer" (Chamfer-Dis of Table 4: bidirectional Chamfer between the points and samples on
+        the cuboids as L_recons, with the hard nearest-cuboid allocation for the other terms);
+      allocation: "segmentation" (W from the network, P2C-Seg, default) or "nearest_cuboid"
+        (P2C-Dis: W = one-hot of the closest cuboid under the chosen distance).
+    The authors' public code (off by default, see official-code notes):
+      centers_from_allocation: use c_m = sum_n W p_n / (sum_n W + 1) as cuboid centres in every loss;
+      compactness_average: (mean_m sqrt(w_m + eps))^2 instead of the sum (= paper / M^2);
+      existence_min_points: existence target N w_m > this many points (code: 24) instead of eps_ext.
+    """
+
+    lambda_compact: float = 0.1
+    lambda_exist: float = 0.01
+    lambda_kl: float = 6e-6
+    sigma_s: float = 0.05
+    eps_sps: float = 0.01
+    eps_ext: float = 0.05
+    distance: str = "normal"
+    allocation: str = "segmentation"
+    chamfer_samples: int | None = None
+    centers_from_allocation: bool = False
+    compactness_average: bool = False
+    existence_min_points: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.distance not in DISTANCES:
+            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
+        if self.allocation not in ALLOCATIONS:
+            raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
+        for name in ("lambda_compact", "lambda_exist", "lambda_kl", "sigma_s", "eps_sps", "eps_ext"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
+
+    @classmethod
+    def authors_code(cls, **overrides) -> "LossConfig":
+        """The choices of the authors' public code (centroid centres, averaged compactness, 24-point existence)."""
+        return cls(**{"centers_from_allocation": True, "compactness_average": True, "existence_min_points": 24.0,
+                      **overrides})
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "LossConfig":
+        unknown = set(data) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown LossConfig field(s) {sorted(unknown)}")
+        return cls(**data)
+
+
+@dataclass
+class LossTerms:
+    """The total loss and its terms, each averaged over the batch (scalars), plus W and w used."""
+
+    total: torch.Tensor
+    reconstruction: torch.Tensor
+    compactness: torch.Tensor
+    existence: torch.Tensor
+    kl: torch.Tensor
+    W: torch.Tensor
+    portions: torch.Tensor
+
+    def as_floats(self) -> dict[str, float]:
+        """The five scalar terms as plain floats (for logs and progress bars)."""
+        return {k: float(getattr(self, k)) for k in ("total", "reconstruction", "compactness", "existence", "kl")}
+
+
+def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: LossConfig = LossConfig(),
+               generator: torch.Generator | None = None) -> LossTerms:
+    """L = L_recons + lambda_1 L_compact + lambda_2 L_exist + lambda_3 L_KL-div (Eq. 9), batch-averaged.
+
+    output: the network's prediction (attributes centers, quaternions, half_sizes (B, M, ...),
+    exist_logits (B, M), W (B, N, M), mu, logvar (B, K)), e.g. cuboidlib.model.ModelOutput;
+    points, normals: (B, N, 3) the input shapes with unit normals. ``generator`` drives the sampling
+    along the normals (Eq. 5) and, for distance="chamfer", on the cuboids.
+    """
+    c = config
+    W = output.W
+    centers = allocation_weighted_centers(W, points) if c.centers_from_allocation else output.centers
+    cuboids = (centers, output.quaternions, output.half_sizes)
+    if c.distance == "chamfer":
+        d = nearest_surface_distance(points, *cuboids)
+        W = nearest_cuboid_allocation(d)
+        samples = c.chamfer_samples or points.shape[1]
+        recons = chamfer_distance_to_cuboids(points, *cuboids, n_samples=samples, generator=generator)
+    else:
+        if c.distance == "normal":
+            d = point_to_cuboid_distance(points, normals, *cuboids, sigma_s=c.sigma_s, generator=generator)
+        else:
+            d = nearest_surface_distance(points, *cuboids)
+        if c.allocation == "nearest_cuboid":
+            W = nearest_cuboid_allocation(d)
+        recons = reconstruction_loss(W, d)
+    w = allocation_portions(W)
+    compact = compactness_loss(w, c.eps_sps, average_over_cuboids=c.compactness_average)
+    targets = existence_targets(w, c.eps_ext, c.existence_min_points, points.shape[1])
+    exist = existence_loss(output.exist_logits, targets)
+    kl = kl_divergence(output.mu, output.logvar)
+    recons, compact, exist, kl = recons.mean(), compact.mean(), exist.mean(), kl.mean()
+    total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
+    return LossTerms(total, recons, compact, exist, kl, W, w)

@@ -255,3 +255,177 @@ def test_penalties_reject_bad_input(name, w, error, match):
 def test_compactness_rejects_negative_eps():
     with pytest.raises(ValueError, match=r"eps_sps must be non-negative, got -0.01"):
         compactness_loss(torch.tensor([0.5, 0.5]), eps_sps=-0.01)
+
+
+# =========================================================================================================
+# Reconstruction (Eq. 4), existence (Eq. 7), KL (Eq. 8) and the total loss (Eq. 9)
+# =========================================================================================================
+
+from types import SimpleNamespace  # noqa: E402
+
+from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance  # noqa: E402
+from cuboidlib.losses import (  # noqa: E402
+    LossConfig,
+    allocation_weighted_centers,
+    existence_loss,
+    existence_targets,
+    kl_divergence,
+    nearest_cuboid_allocation,
+    reconstruction_loss,
+    total_loss,
+)
+
+
+def test_reconstruction_loss_by_hand():
+    W = torch.tensor([[[1.0, 0.0], [0.25, 0.75]]])
+    d = torch.tensor([[[2.0, 10.0], [4.0, 8.0]]])
+    # point 0: 1 * 2 = 2; point 1: 0.25 * 4 + 0.75 * 8 = 7; mean over the two points = 4.5
+    assert reconstruction_loss(W, d).tolist() == [4.5]
+    with pytest.raises(ValueError, match=r"\(B, N, M\)"):
+        reconstruction_loss(W, d[..., :1])
+
+
+def test_nearest_cuboid_allocation_is_one_hot_argmin():
+    d = torch.tensor([[[3.0, 1.0, 2.0], [0.5, 4.0, 0.7]]], requires_grad=True)
+    W = nearest_cuboid_allocation(d)
+    assert W.tolist() == [[[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]]
+    assert not W.requires_grad
+
+
+def test_allocation_weighted_centers_by_hand():
+    points = torch.tensor([[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 4.0, 0.0]]])
+    W = torch.tensor([[[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
+    # cuboid 0: (0 + 2) / (2 + 1) on x; cuboid 1: 4 / (1 + 1) on y
+    expected = torch.tensor([[[2 / 3, 0.0, 0.0], [0.0, 2.0, 0.0]]])
+    torch.testing.assert_close(allocation_weighted_centers(W, points), expected)
+
+
+def test_existence_targets_paper_threshold_and_code_threshold():
+    w = torch.tensor([[0.04, 0.06, 0.9]])
+    assert existence_targets(w).tolist() == [[0.0, 1.0, 1.0]]
+    # the code's rule with N = 500 points: 0.04 * 500 = 20 <= 24, 0.06 * 500 = 30 > 24
+    assert existence_targets(w, min_points=24, num_points=500).tolist() == [[0.0, 1.0, 1.0]]
+    # with N = 100 the counts are 4, 6 and 90: only the last passes 24 points
+    assert existence_targets(w, min_points=24, num_points=100).tolist() == [[0.0, 0.0, 1.0]]
+    with pytest.raises(ValueError, match="num_points"):
+        existence_targets(w, min_points=24)
+
+
+def test_existence_loss_matches_eq7_on_probabilities():
+    logits = torch.tensor([[0.3, -1.2, 2.0]], dtype=torch.float64)
+    t = torch.tensor([[1.0, 0.0, 1.0]], dtype=torch.float64)
+    p = torch.sigmoid(logits)
+    by_hand = -(t * p.log() + (1 - t) * (1 - p).log()).mean(dim=-1)
+    torch.testing.assert_close(existence_loss(logits, t), by_hand)
+    with pytest.raises(ValueError, match=r"\(B, M\)"):
+        existence_loss(logits, t[:, :2])
+
+
+def test_kl_divergence_by_hand():
+    zero = torch.zeros(2, 4)
+    assert kl_divergence(zero, zero).tolist() == [0.0, 0.0]
+    mu = torch.tensor([[1.0, 0.0]])
+    logvar = torch.tensor([[0.0, math.log(2.0)]])
+    # dim 0: 0.5 * (1 - 1 + 1) = 0.5; dim 1: 0.5 * (2 - (1 + log 2)) = 0.5 - 0.5 log 2
+    assert kl_divergence(mu, logvar).item() == pytest.approx(1.0 - 0.5 * math.log(2.0))
+
+
+def _toy_prediction(requires_grad=False):
+    """Two cuboids and four points with normals, as a network output would hold them."""
+    g = torch.Generator().manual_seed(0)
+    points = torch.tensor([[[0.5, 0.0, 0.0], [0.0, 0.5, 0.1], [1.5, 0.2, 0.0], [1.0, 0.0, 0.3]]])
+    # tilted normals, so that the sampling along the normal changes the distance (Eq. 5)
+    normals = torch.nn.functional.normalize(torch.tensor([[[1.0, 0.3, 0.0], [0.0, 1.0, 0.2], [1.0, 0.0, -0.4], [0.1, 0.0, 1.0]]]), dim=-1)
+    out = SimpleNamespace(
+        centers=torch.tensor([[[0.0, 0.0, 0.0], [1.2, 0.0, 0.0]]]),
+        quaternions=torch.tensor([[[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]]),
+        half_sizes=torch.tensor([[[0.5, 0.5, 0.5], [0.3, 0.3, 0.3]]]),
+        exist_logits=torch.tensor([[1.0, -1.0]]),
+        W=torch.softmax(torch.randn(1, 4, 2, generator=g), dim=-1),
+        mu=torch.tensor([[0.5, -0.5]]),
+        logvar=torch.tensor([[0.1, -0.2]]),
+    )
+    if requires_grad:
+        for name in ("centers", "half_sizes", "W"):
+            setattr(out, name, getattr(out, name).clone().requires_grad_())
+    return out, points, normals
+
+
+def test_total_loss_combines_the_terms_with_the_paper_weights():
+    out, points, normals = _toy_prediction()
+    config = LossConfig(sigma_s=0.0)
+    terms = total_loss(out, points, normals, config)
+    d = point_to_cuboid_distance(points, normals, out.centers, out.quaternions, out.half_sizes, sigma_s=0.0)
+    w = out.W.mean(dim=1)
+    recons = (out.W * d).sum(-1).mean()
+    compact = (torch.sqrt(w + 0.01).sum(-1) ** 2).mean()
+    exist = existence_loss(out.exist_logits, (w > 0.05).float()).mean()
+    kl = kl_divergence(out.mu, out.logvar).mean()
+    torch.testing.assert_close(terms.reconstruction, recons)
+    torch.testing.assert_close(terms.compactness, compact)
+    torch.testing.assert_close(terms.existence, exist)
+    torch.testing.assert_close(terms.kl, kl)
+    torch.testing.assert_close(terms.total, recons + 0.1 * compact + 0.01 * exist + 6e-6 * kl)
+    assert set(terms.as_floats()) == {"total", "reconstruction", "compactness", "existence", "kl"}
+
+
+def test_total_loss_sampling_is_reproducible_with_a_generator():
+    out, points, normals = _toy_prediction()
+    a = total_loss(out, points, normals, generator=torch.Generator().manual_seed(5)).total
+    b = total_loss(out, points, normals, generator=torch.Generator().manual_seed(5)).total
+    c = total_loss(out, points, normals, generator=torch.Generator().manual_seed(6)).total
+    assert a == b and a != c
+
+
+def test_total_loss_gradients_reach_cuboids_and_allocation():
+    out, points, normals = _toy_prediction(requires_grad=True)
+    total_loss(out, points, normals, LossConfig(sigma_s=0.0)).total.backward()
+    for name in ("centers", "half_sizes", "W"):
+        grad = getattr(out, name).grad
+        assert grad is not None and grad.abs().sum() > 0, name
+
+
+def test_authors_code_options_change_the_terms_as_documented():
+    out, points, normals = _toy_prediction()
+    paper = total_loss(out, points, normals, LossConfig(sigma_s=0.0))
+    code = total_loss(out, points, normals, LossConfig.authors_code(sigma_s=0.0))
+    M = out.W.shape[-1]
+    torch.testing.assert_close(code.compactness, paper.compactness / M**2)
+    centroids = allocation_weighted_centers(out.W, points)
+    d = point_to_cuboid_distance(points, normals, centroids, out.quaternions, out.half_sizes, sigma_s=0.0)
+    torch.testing.assert_close(code.reconstruction, reconstruction_loss(out.W, d).mean())
+    # 4 points can never pass the 24-point existence rule: every target is 0
+    torch.testing.assert_close(code.existence, existence_loss(out.exist_logits, torch.zeros(1, M)).mean())
+
+
+def test_ablation_variants():
+    out, points, normals = _toy_prediction()
+    nearest = total_loss(out, points, normals, LossConfig(distance="nearest_surface"))
+    d = nearest_surface_distance(points, out.centers, out.quaternions, out.half_sizes)
+    torch.testing.assert_close(nearest.reconstruction, reconstruction_loss(out.W, d).mean())
+
+    hard = total_loss(out, points, normals, LossConfig(allocation="nearest_cuboid", sigma_s=0.0))
+    d = point_to_cuboid_distance(points, normals, out.centers, out.quaternions, out.half_sizes, sigma_s=0.0)
+    torch.testing.assert_close(hard.W, nearest_cuboid_allocation(d))
+    torch.testing.assert_close(hard.reconstruction, d.amin(dim=-1).mean())
+
+    chamfer = total_loss(out, points, normals, LossConfig(distance="chamfer"), generator=torch.Generator().manual_seed(0))
+    assert torch.all(chamfer.W.sum(-1) == 1) and set(chamfer.W.unique().tolist()) <= {0.0, 1.0}
+    assert chamfer.reconstruction > 0
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"distance": "l2"}, "distance"), ({"allocation": "random"}, "allocation"), ({"lambda_compact": -1}, "lambda_compact"),
+     ({"sigma_s": float("nan")}, "sigma_s")],
+)
+def test_loss_config_rejects_bad_values(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        LossConfig(**kwargs)
+
+
+def test_loss_config_dict_round_trip():
+    config = LossConfig.authors_code(lambda_compact=0.2)
+    assert LossConfig.from_dict(config.to_dict()) == config
+    with pytest.raises(ValueError, match="unknown"):
+        LossConfig.from_dict({"lambda_4": 1.0})
