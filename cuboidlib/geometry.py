@@ -1,0 +1,745 @@
+"""Cuboid geometry: rotations, local frames, faces, corners, meshes and surface sampling (Sec. 3).
+
+A cuboid C_m is the paper's triple (t, r, s) (Sec. 3, "Our Approach"):
+
+- ``centers`` t: (B, M, 3), the cuboid's centre in world coordinates;
+- ``quaternions`` r: (B, M, 4), a unit quaternion in (w, x, y, z) order that rotates the cuboid's local
+  axes into the world;
+- ``half_sizes`` s: (B, M, 3), the half extents along the local x, y and z axes (the cuboid spans
+  [-s_x, s_x] x [-s_y, s_y] x [-s_z, s_z] in its own frame).
+
+A world point p and its local coordinates l are related by p = R l + t, with R the rotation matrix of
+r (its columns are the cuboid's local axes written in world coordinates).
+
+Conventions used throughout cuboidlib:
+
+- Faces are numbered 0..5 in the order +x, -x, +y, -y, +z, -z (:data:`FACE_NORMALS`).
+- Corners are numbered 0..7 by the bits of the index: bit 0 is the sign of x, bit 1 of y, bit 2 of z,
+  with 0 = minus and 1 = plus, so corner 0 is (-s_x, -s_y, -s_z) and corner 7 is (+s_x, +s_y, +s_z)
+  (:data:`CORNER_SIGNS`).
+
+Every tensor function is differentiable with respect to the cuboid parameters and the points, and
+works on the device and dtype of its inputs (numpy arrays are accepted and converted). Functions
+validate their inputs by default; ``validate=False`` skips the checks for hot loops and then expects
+tensors of one float dtype on one device. The functional API is the primary one; :class:`Cuboids`
+is a small container that bundles a batch of cuboids and calls into it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import trimesh
+
+from ._checks import (
+    as_float_tensor,
+    check_finite,
+    check_positive,
+    check_same_leading,
+    check_shape,
+    check_unit_vectors,
+)
+
+#: Inputs accepted where a tensor is expected: tensors, numpy arrays (converted to tensors).
+TensorLike = torch.Tensor | np.ndarray
+
+__all__ = [
+    "TensorLike",
+    "FACE_NORMALS",
+    "FACE_TANGENTS",
+    "CORNER_SIGNS",
+    "CUBOID_TRIANGLES",
+    "quaternion_to_rotation_matrix",
+    "rotation_matrix_to_quaternion",
+    "standardize_quaternion",
+    "quaternion_multiply",
+    "random_quaternions",
+    "validate_cuboids",
+    "world_to_local",
+    "local_to_world",
+    "directions_to_local",
+    "directions_to_world",
+    "cuboid_face_normals",
+    "cuboid_corners",
+    "cuboid_face_areas",
+    "cuboids_to_trimesh",
+    "SurfaceSamples",
+    "sample_cuboid_surfaces",
+    "Cuboids",
+]
+
+#: Local outward normals of the six faces, shape (6, 3), in the order +x, -x, +y, -y, +z, -z.
+#: Face f lies on the plane l[f // 2] = (+1 if f is even else -1) * s[f // 2] of the local frame.
+FACE_NORMALS = torch.tensor(
+    [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]
+)
+
+#: Two local unit tangents (u, v) spanning each face, shape (6, 2, 3), chosen so that u x v is the
+#: face's outward normal. A point of face f in unit-cube coordinates is n_f + a u_f + b v_f with
+#: a, b in [-1, 1]; multiplying by s gives the local point.
+FACE_TANGENTS = torch.tensor(
+    [
+        [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],  # +x: u = +y, v = +z
+        [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]],  # -x: u = +z, v = +y
+        [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]],  # +y: u = +z, v = +x
+        [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],  # -y: u = +x, v = +z
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],  # +z: u = +x, v = +y
+        [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]],  # -z: u = +y, v = +x
+    ]
+)
+
+#: Signs of the eight corners in the unit cube, shape (8, 3): corner k has sign +1 on axis i when bit
+#: i of k is set and -1 otherwise. Corner k of a cuboid is t + R (CORNER_SIGNS[k] * s).
+CORNER_SIGNS = torch.tensor([[1.0 if (k >> i) & 1 else -1.0 for i in range(3)] for k in range(8)])
+
+
+def _corner_index(signs: torch.Tensor) -> int:
+    """Index of the corner with the given (3,) sign vector (inverse of :data:`CORNER_SIGNS`)."""
+    return int(sum(int(signs[i] > 0) << i for i in range(3)))
+
+
+def _build_triangles() -> torch.Tensor:
+    """Two triangles per face, wound counter-clockwise when seen from outside (outward normals)."""
+    triangles = []
+    for f in range(6):
+        n, (u, v) = FACE_NORMALS[f], FACE_TANGENTS[f]
+        # Going (-u,-v) -> (+u,-v) -> (+u,+v) -> (-u,+v) is counter-clockwise seen from outside,
+        # because u x v = n points outwards.
+        ring = [_corner_index(n + a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        triangles += [[ring[0], ring[1], ring[2]], [ring[0], ring[2], ring[3]]]
+    return torch.tensor(triangles, dtype=torch.long)
+
+
+#: Triangles of a cuboid mesh, shape (12, 3), as indices into its 8 corners (:data:`CORNER_SIGNS`
+#: order). Triangles 2f and 2f + 1 cover face f; all are wound so their normals point outwards.
+CUBOID_TRIANGLES = _build_triangles()
+
+
+# ----------------------------------------------------------------------------------------------
+# Quaternions and rotation matrices
+# ----------------------------------------------------------------------------------------------
+
+
+def quaternion_to_rotation_matrix(q: torch.Tensor, validate: bool = True) -> torch.Tensor:
+    """Rotation matrix of a quaternion (w, x, y, z).
+
+    q: (..., 4). Returns R: (..., 3, 3), whose columns are the rotated local x, y, z axes, so a local
+    point l maps to the world point R l + t.
+
+    The formula uses s = 2 / |q|^2, which equals the textbook unit-quaternion formula when |q| = 1 and
+    still gives an exact rotation when a quaternion has drifted slightly from unit length.
+    With ``validate`` (default) q must be finite and unit length within 1e-3; zero or clearly
+    non-unit quaternions raise a ``ValueError`` that says how to fix them.
+    """
+    q = as_float_tensor(q, "quaternions")
+    if q.dim() < 1 or q.shape[-1] != 4:
+        raise ValueError(f"quaternions must have shape (..., 4) in (w, x, y, z) order, got shape {tuple(q.shape)}")
+    if validate:
+        check_finite(q, "quaternions")
+        check_unit_vectors(q, "quaternions")
+    w, x, y, z = q.unbind(-1)
+    s = 2.0 / (q * q).sum(-1)
+    rows = (
+        (1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)),
+        (s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)),
+        (s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)),
+    )
+    return torch.stack([torch.stack(row, dim=-1) for row in rows], dim=-2)
+
+
+def standardize_quaternion(q: torch.Tensor) -> torch.Tensor:
+    """Choose the canonical sign of each quaternion (q and -q are the same rotation).
+
+    q: (..., 4) in (w, x, y, z) order. Returns q with w >= 0; when w is exactly 0, the first non-zero
+    of x, y, z is made positive. Differentiable (a sign flip).
+    """
+    q = as_float_tensor(q, "quaternions")
+    nonzero = q.detach() != 0
+    first = nonzero.to(torch.uint8).argmax(dim=-1, keepdim=True)  # first non-zero component
+    sign = torch.gather(q.detach(), -1, first).sign()
+    sign = torch.where(sign == 0, torch.ones_like(sign), sign)
+    return q * sign
+
+
+def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a * b of quaternions (w, x, y, z): the rotation b followed by a.
+
+    a, b: (..., 4), broadcast against each other. Returns (..., 4). R(a * b) = R(a) @ R(b).
+    """
+    a = as_float_tensor(a, "a")
+    b = as_float_tensor(b, "b")
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        dim=-1,
+    )
+
+
+def rotation_matrix_to_quaternion(R: torch.Tensor, validate: bool = True, tol: float = 1e-3) -> torch.Tensor:
+    """Unit quaternion (w, x, y, z) of a rotation matrix, canonical sign (w >= 0).
+
+    R: (..., 3, 3). Returns q: (..., 4) with ``quaternion_to_rotation_matrix(q) == R``.
+
+    Robust for every rotation, including 180-degree turns: of the four algebraically equivalent
+    formulas (led by w, x, y or z), each entry uses the one with the largest, well-conditioned
+    square root. With ``validate`` R must be finite, orthonormal and have determinant +1 within
+    ``tol`` (a reflection raises a ``ValueError``).
+    """
+    R = as_float_tensor(R, "R")
+    if R.dim() < 2 or R.shape[-2:] != (3, 3):
+        raise ValueError(f"R must have shape (..., 3, 3), got shape {tuple(R.shape)}")
+    if validate:
+        check_finite(R, "R")
+        eye = torch.eye(3, dtype=R.dtype, device=R.device)
+        err = (R.detach().transpose(-1, -2) @ R.detach() - eye).abs().amax(dim=(-1, -2))
+        if (err > tol).any():
+            idx = tuple(int(i) for i in torch.nonzero(err > tol)[0])
+            raise ValueError(
+                f"R must hold rotation matrices (R^T R = I); the matrix at index {idx} is off by "
+                f"{float(err[idx]):.3g}"
+            )
+        det = torch.linalg.det(R.detach())
+        if (det < 0).any():
+            idx = tuple(int(i) for i in torch.nonzero(det < 0)[0])
+            raise ValueError(
+                f"R must hold rotations (determinant +1); the matrix at index {idx} has determinant "
+                f"{float(det[idx]):.3g} (a reflection, which no quaternion represents)"
+            )
+    m00, m01, m02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
+    m10, m11, m12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
+    m20, m21, m22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
+    # 4 w^2, 4 x^2, 4 y^2, 4 z^2 from the diagonal; at least one of them is >= 1.
+    squares = torch.stack(
+        (1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22), dim=-1
+    )
+    # Clamping only touches the formulas that are not selected (their root may be tiny or imaginary).
+    roots = squares.clamp_min(0.1).sqrt()  # 2|w|, 2|x|, 2|y|, 2|z|
+    # Off-diagonal combinations: 4wx, 4wy, 4wz, 4xy, 4xz, 4yz.
+    wx, wy, wz = m21 - m12, m02 - m20, m10 - m01
+    xy, xz, yz = m01 + m10, m02 + m20, m12 + m21
+    r0, r1, r2, r3 = roots.unbind(-1)
+    candidates = torch.stack(
+        (
+            torch.stack((r0 * r0, wx, wy, wz), dim=-1) / (2 * r0)[..., None],
+            torch.stack((wx, r1 * r1, xy, xz), dim=-1) / (2 * r1)[..., None],
+            torch.stack((wy, xy, r2 * r2, yz), dim=-1) / (2 * r2)[..., None],
+            torch.stack((wz, xz, yz, r3 * r3), dim=-1) / (2 * r3)[..., None],
+        ),
+        dim=-2,
+    )  # (..., 4 formulas, 4 components)
+    best = torch.nn.functional.one_hot(squares.detach().argmax(dim=-1), 4).to(R.dtype)
+    q = (candidates * best[..., None]).sum(dim=-2)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return standardize_quaternion(q)
+
+
+def random_quaternions(
+    *shape: int,
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype | None = None,
+    device: torch.device | str | None = None,
+) -> torch.Tensor:
+    """Uniformly random rotations as unit quaternions (w, x, y, z) with w >= 0.
+
+    Returns a tensor of shape (*shape, 4). A normalised 4-d standard Gaussian is uniform on the unit
+    sphere S^3, which gives rotations uniformly distributed over SO(3).
+    """
+    g = torch.randn(*shape, 4, generator=generator, dtype=dtype, device=device)
+    return standardize_quaternion(g / g.norm(dim=-1, keepdim=True))
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation
+# ----------------------------------------------------------------------------------------------
+
+
+def _common_float(tensors: dict) -> dict:
+    """Convert to float tensors of one promoted dtype on one device (error if devices differ)."""
+    out = {name: as_float_tensor(t, name) for name, t in tensors.items()}
+    devices = {str(t.device) for t in out.values()}
+    if len(devices) > 1:
+        listing = ", ".join(f"{name} on {t.device}" for name, t in out.items())
+        raise ValueError(f"all inputs must be on one device, got {listing}; move them with .to(device)")
+    dtype = out[next(iter(out))].dtype
+    for t in out.values():
+        dtype = torch.promote_types(dtype, t.dtype)
+    return {name: t.to(dtype) for name, t in out.items()}
+
+
+def _as_exists_mask(exists: TensorLike, shape: tuple, device: torch.device) -> torch.Tensor:
+    """Check an existence mask: booleans (or 0/1 integers) of the given (B, M) shape."""
+    e = exists if isinstance(exists, torch.Tensor) else torch.as_tensor(np.asarray(exists))
+    if e.is_floating_point():
+        raise TypeError(
+            "exists must be a boolean mask of shape (B, M); threshold probabilities first, "
+            "e.g. exists = existence_probability > 0.5"
+        )
+    if e.dtype != torch.bool:
+        if ((e != 0) & (e != 1)).any():
+            raise ValueError("exists must be a boolean mask (or 0/1 integers) of shape (B, M)")
+        e = e != 0
+    if tuple(e.shape) != tuple(shape):
+        raise ValueError(f"exists must have shape (B, M) = {tuple(shape)} like the cuboids, got {tuple(e.shape)}")
+    return e.to(device)
+
+
+_CUBOID_SHAPES = {"centers": ("B", "M", 3), "quaternions": ("B", "M", 4), "half_sizes": ("B", "M", 3)}
+
+
+def _validate_cuboid_parts(parts: dict, quaternion_tol: float = 1e-3) -> dict:
+    """Validate any subset of the cuboid tensors (dict name -> tensor); see :func:`validate_cuboids`."""
+    t = _common_float(parts)
+    sizes: dict = {}
+    check_same_leading({name: check_shape(x, _CUBOID_SHAPES[name], name) for name, x in t.items()}, sizes, "cuboids")
+    if sizes["M"] == 0:
+        raise ValueError("cuboids: M = 0; at least one cuboid per shape is needed")
+    for name, value in t.items():
+        check_finite(value, name)
+    if "quaternions" in t:
+        check_unit_vectors(t["quaternions"], "quaternions", tol=quaternion_tol)
+    if "half_sizes" in t:
+        check_positive(t["half_sizes"], "half_sizes")
+    return t
+
+
+def validate_cuboids(
+    centers: TensorLike,
+    quaternions: TensorLike,
+    half_sizes: TensorLike,
+    exists: TensorLike | None = None,
+    quaternion_tol: float = 1e-3,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Check a batch of cuboids and return it as float tensors of one dtype and device.
+
+    centers (B, M, 3), quaternions (B, M, 4) unit (w, x, y, z), half_sizes (B, M, 3) positive,
+    exists (B, M) boolean or None. Raises ``ValueError`` naming the argument for: wrong shapes,
+    B or M that disagree, NaN/inf, zero or non-unit quaternions (beyond ``quaternion_tol``), zero or
+    negative half sizes; ``TypeError`` for a float ``exists`` (probabilities must be thresholded).
+    Cost: a few reductions over B * M numbers.
+    Returns (centers, quaternions, half_sizes, exists) with dtypes promoted to a common float dtype.
+    """
+    t = _validate_cuboid_parts(
+        {"centers": centers, "quaternions": quaternions, "half_sizes": half_sizes}, quaternion_tol
+    )
+    c = t["centers"]
+    mask = None if exists is None else _as_exists_mask(exists, tuple(c.shape[:2]), c.device)
+    return c, t["quaternions"], t["half_sizes"], mask
+
+
+def _check_points(points: TensorLike, name: str = "points") -> torch.Tensor:
+    """Check a (B, N, 3) point (or direction) cloud with N >= 1 and finite values."""
+    p = as_float_tensor(points, name)
+    check_shape(p, ("B", "N", 3), name)
+    if p.shape[1] == 0:
+        raise ValueError(f"{name} is empty (N = 0); at least one point per shape is needed")
+    check_finite(p, name)
+    return p
+
+
+def _broadcast_batch(b_points: int, b_cuboids: int, what: str) -> int:
+    """Batch size of points against cuboids: equal, or one of them is 1 and is broadcast."""
+    if b_points != b_cuboids and 1 not in (b_points, b_cuboids):
+        raise ValueError(
+            f"{what}: the points have batch size {b_points} but the cuboids have {b_cuboids}; "
+            "they must be equal or one of them must be 1 (broadcast)"
+        )
+    return max(b_points, b_cuboids)
+
+
+def _validate_points_and_cuboids(points: dict, cuboids: dict, what: str) -> dict:
+    """Validate point clouds and cuboid tensors (dicts name -> tensor) together.
+
+    Every point cloud must be (B, N, 3) with the same shape; the cuboid tensors are checked as in
+    :func:`validate_cuboids`; the two batch sizes must agree or one must be 1. Returns all tensors
+    converted to one float dtype, keyed by name.
+    """
+    checked = {name: _check_points(p, name) for name, p in points.items()}
+    cub = _validate_cuboid_parts(cuboids)
+    out = _common_float({**checked, **cub})
+    first_name = next(iter(points))
+    first = out[first_name]
+    for name in points:
+        if out[name].shape != first.shape:
+            raise ValueError(
+                f"{what}: {name} has shape {tuple(out[name].shape)} but {first_name} has "
+                f"{tuple(first.shape)}; they must match"
+            )
+    _broadcast_batch(first.shape[0], next(iter(cub.values())).shape[0], what)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Local frames
+# ----------------------------------------------------------------------------------------------
+
+
+def _to_local(points: torch.Tensor, centers: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
+    """l = R^T (p - t) for every point and cuboid: (B, N, 3), (B, M, 3), (B, M, 3, 3) -> (B, N, M, 3).
+
+    Computed with row vectors as p R - t R: one batched matrix product and a broadcast subtraction.
+    """
+    return torch.einsum("bnj,bmji->bnmi", points, R) - torch.einsum("bmj,bmji->bmi", centers, R)[:, None]
+
+
+def _directions_to_local(directions: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
+    """R^T d for every direction and cuboid: (B, N, 3), (B, M, 3, 3) -> (B, N, M, 3)."""
+    return torch.einsum("bnj,bmji->bnmi", directions, R)
+
+
+def world_to_local(
+    points: TensorLike,
+    centers: TensorLike,
+    quaternions: TensorLike,
+    validate: bool = True,
+) -> torch.Tensor:
+    """Coordinates of every point in every cuboid's local frame, l = R^T (p - t).
+
+    points: (B, N, 3); centers: (B, M, 3); quaternions: (B, M, 4). A batch size of 1 on either side
+    is broadcast. Returns (B, N, M, 3): entry [b, n, m] is point n of shape b in the frame of cuboid m.
+    """
+    if validate:
+        v = _validate_points_and_cuboids(
+            {"points": points}, {"centers": centers, "quaternions": quaternions}, "world_to_local"
+        )
+        points, centers, quaternions = v["points"], v["centers"], v["quaternions"]
+    R = quaternion_to_rotation_matrix(quaternions, validate=False)
+    return _to_local(points, centers, R)
+
+
+def _check_local(local: torch.Tensor, cuboids: dict, name: str, what: str) -> None:
+    """Check (B, N, M, 3) local coordinates against validated cuboid tensors."""
+    sizes = check_shape(local, ("B", "N", "M", 3), name)
+    check_finite(local, name)
+    first = next(iter(cuboids.values()))
+    if sizes["M"] != first.shape[1]:
+        raise ValueError(f"{what}: {name} has M = {sizes['M']} cuboids but the cuboids have M = {first.shape[1]}")
+    _broadcast_batch(sizes["B"], first.shape[0], what)
+
+
+def local_to_world(
+    local_points: TensorLike,
+    centers: TensorLike,
+    quaternions: TensorLike,
+    validate: bool = True,
+) -> torch.Tensor:
+    """Inverse of :func:`world_to_local`: p = R l + t.
+
+    local_points: (B, N, M, 3) (point n in the frame of cuboid m); centers: (B, M, 3);
+    quaternions: (B, M, 4). Returns (B, N, M, 3) world coordinates.
+    """
+    if validate:
+        v = _common_float(
+            {"local_points": local_points, **_validate_cuboid_parts({"centers": centers, "quaternions": quaternions})}
+        )
+        local_points, centers, quaternions = v["local_points"], v["centers"], v["quaternions"]
+        _check_local(local_points, {"centers": centers}, "local_points", "local_to_world")
+    R = quaternion_to_rotation_matrix(quaternions, validate=False)
+    return torch.einsum("bmij,bnmj->bnmi", R, local_points) + centers[:, None]
+
+
+def directions_to_local(directions: TensorLike, quaternions: TensorLike, validate: bool = True) -> torch.Tensor:
+    """Directions (e.g. normals) in every cuboid's local frame, R^T d (no translation).
+
+    directions: (B, N, 3); quaternions: (B, M, 4). Returns (B, N, M, 3).
+    """
+    if validate:
+        v = _validate_points_and_cuboids(
+            {"directions": directions}, {"quaternions": quaternions}, "directions_to_local"
+        )
+        directions, quaternions = v["directions"], v["quaternions"]
+    return _directions_to_local(directions, quaternion_to_rotation_matrix(quaternions, validate=False))
+
+
+def directions_to_world(
+    local_directions: TensorLike,
+    quaternions: TensorLike,
+    validate: bool = True,
+) -> torch.Tensor:
+    """Inverse of :func:`directions_to_local`: R d. local_directions (B, N, M, 3) -> (B, N, M, 3)."""
+    if validate:
+        v = _common_float(
+            {"local_directions": local_directions, **_validate_cuboid_parts({"quaternions": quaternions})}
+        )
+        local_directions, quaternions = v["local_directions"], v["quaternions"]
+        _check_local(local_directions, {"quaternions": quaternions}, "local_directions", "directions_to_world")
+    R = quaternion_to_rotation_matrix(quaternions, validate=False)
+    return torch.einsum("bmij,bnmj->bnmi", R, local_directions)
+
+
+# ----------------------------------------------------------------------------------------------
+# Faces, corners, areas
+# ----------------------------------------------------------------------------------------------
+
+
+def cuboid_face_normals(quaternions: TensorLike, validate: bool = True) -> torch.Tensor:
+    """World outward normals of the six faces of every cuboid.
+
+    quaternions: (B, M, 4). Returns (B, M, 6, 3) in the :data:`FACE_NORMALS` order
+    (+x, -x, +y, -y, +z, -z): R applied to the local normals, i.e. plus/minus the columns of R.
+    """
+    R = quaternion_to_rotation_matrix(quaternions, validate=validate)
+    return torch.einsum("...ij,fj->...fi", R, FACE_NORMALS.to(R))
+
+
+def cuboid_corners(
+    centers: TensorLike,
+    quaternions: TensorLike,
+    half_sizes: TensorLike,
+    validate: bool = True,
+) -> torch.Tensor:
+    """The eight corners of every cuboid, t + R (sigma_k * s).
+
+    centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3). Returns (B, M, 8, 3) in the
+    :data:`CORNER_SIGNS` order (corner k has +s_i on axis i when bit i of k is set).
+    """
+    if validate:
+        centers, quaternions, half_sizes, _ = validate_cuboids(centers, quaternions, half_sizes)
+    R = quaternion_to_rotation_matrix(quaternions, validate=False)
+    local = CORNER_SIGNS.to(half_sizes) * half_sizes[..., None, :]  # (B, M, 8, 3)
+    return torch.einsum("bmij,bmkj->bmki", R, local) + centers[..., None, :]
+
+
+def cuboid_face_areas(half_sizes: TensorLike) -> torch.Tensor:
+    """Areas of the six faces, in the :data:`FACE_NORMALS` order.
+
+    half_sizes: (..., 3). Returns (..., 6): the +x and -x faces have area (2 s_y)(2 s_z), and so on.
+    """
+    s = as_float_tensor(half_sizes, "half_sizes")
+    if s.dim() < 1 or s.shape[-1] != 3:
+        raise ValueError(f"half_sizes must have shape (..., 3), got shape {tuple(s.shape)}")
+    sx, sy, sz = s.unbind(-1)
+    yz, xz, xy = 4 * sy * sz, 4 * sx * sz, 4 * sx * sy
+    return torch.stack((yz, yz, xz, xz, xy, xy), dim=-1)
+
+
+# ----------------------------------------------------------------------------------------------
+# Meshes
+# ----------------------------------------------------------------------------------------------
+
+
+def _rgba_uint8(colors, m: int) -> np.ndarray:
+    """Colours (M, 3) or (M, 4), floats in [0, 1] or integers in [0, 255] -> (M, 4) uint8 RGBA."""
+    c = np.asarray(colors.detach().cpu() if isinstance(colors, torch.Tensor) else colors)
+    if c.ndim != 2 or c.shape[0] != m or c.shape[1] not in (3, 4):
+        raise ValueError(f"colors must have shape (M, 3) or (M, 4) with M = {m}, got shape {c.shape}")
+    if np.issubdtype(c.dtype, np.floating):
+        if not np.isfinite(c).all() or c.min() < 0 or c.max() > 1:
+            raise ValueError("float colors must lie in [0, 1] (use integers for the 0..255 range)")
+        c = np.round(c * 255)
+    elif not np.issubdtype(c.dtype, np.integer) or c.min() < 0 or c.max() > 255:
+        raise ValueError("colors must be floats in [0, 1] or integers in [0, 255]")
+    if c.shape[1] == 3:
+        c = np.concatenate([c, np.full((m, 1), 255)], axis=1)
+    return c.astype(np.uint8)
+
+
+def cuboids_to_trimesh(
+    centers: TensorLike,
+    quaternions: TensorLike,
+    half_sizes: TensorLike,
+    exists: TensorLike | None = None,
+    colors: TensorLike | None = None,
+    split: bool = False,
+) -> trimesh.Trimesh | list[trimesh.Trimesh]:
+    """Triangle mesh of the cuboids of ONE shape (8 vertices and 12 outward triangles per cuboid).
+
+    centers (M, 3), quaternions (M, 4), half_sizes (M, 3): tensors or arrays of one shape (no batch
+    axis). exists: optional (M,) boolean mask; cuboids marked False are left out. colors: optional
+    per-cuboid colours (M, 3) or (M, 4), floats in [0, 1] or integers in [0, 255], applied to the
+    cuboid's faces. Returns one ``trimesh.Trimesh`` holding all kept cuboids (each a watertight
+    component with volume 8 s_x s_y s_z), or with ``split=True`` a list with one mesh per kept
+    cuboid, in cuboid order. Vertices are float64 numpy; gradients do not flow into meshes.
+    """
+    def single(x, name):
+        x = as_float_tensor(x, name).detach()
+        if x.dim() != 2:
+            raise ValueError(f"{name} must describe ONE shape, shape (M, ...), got shape {tuple(x.shape)}")
+        return x[None]
+
+    c, q, s = single(centers, "centers"), single(quaternions, "quaternions"), single(half_sizes, "half_sizes")
+    if exists is not None:
+        exists = torch.as_tensor(np.asarray(exists.cpu() if isinstance(exists, torch.Tensor) else exists))[None]
+    c, q, s, mask = validate_cuboids(c, q, s, exists)
+    m = c.shape[1]
+    corners = cuboid_corners(c, q, s, validate=False)[0].cpu().double().numpy()  # (M, 8, 3)
+    rgba = None if colors is None else _rgba_uint8(colors, m)
+    keep = range(m) if mask is None else [i for i in range(m) if bool(mask[0, i])]
+    triangles = CUBOID_TRIANGLES.numpy()
+
+    meshes = []
+    for i in keep:  # building a few mesh objects, not a numerical loop
+        face_colors = None if rgba is None else np.repeat(rgba[i : i + 1], len(triangles), axis=0)
+        meshes.append(trimesh.Trimesh(vertices=corners[i], faces=triangles, face_colors=face_colors, process=False))
+    if split:
+        return meshes
+    if not meshes:
+        return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), dtype=np.int64), process=False)
+    vertices = np.concatenate([mesh.vertices for mesh in meshes])
+    faces = np.concatenate([triangles + 8 * k for k in range(len(meshes))])
+    face_colors = None if rgba is None else np.concatenate([mesh.visual.face_colors for mesh in meshes])
+    return trimesh.Trimesh(vertices=vertices, faces=faces, face_colors=face_colors, process=False)
+
+
+# ----------------------------------------------------------------------------------------------
+# Surface sampling
+# ----------------------------------------------------------------------------------------------
+
+
+class SurfaceSamples(NamedTuple):
+    """Points sampled on cuboid surfaces (unpacks as ``points, normals, cuboid_index``)."""
+
+    points: torch.Tensor  #: (B, n, 3) world positions
+    normals: torch.Tensor  #: (B, n, 3) world outward unit normals of the sampled faces
+    cuboid_index: torch.Tensor  #: (B, n) long, index m of the cuboid each point lies on
+
+
+def sample_cuboid_surfaces(
+    centers: TensorLike,
+    quaternions: TensorLike,
+    half_sizes: TensorLike,
+    n_points: int,
+    exists: TensorLike | None = None,
+    generator: torch.Generator | None = None,
+    validate: bool = True,
+) -> SurfaceSamples:
+    """Uniform samples on the union of the cuboids' surfaces, with their outward normals.
+
+    centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3); exists: optional (B, M) boolean
+    mask (only cuboids marked True are sampled; every shape needs at least one). Returns
+    :class:`SurfaceSamples` (points (B, n, 3), normals (B, n, 3), cuboid_index (B, n)).
+
+    Each sample picks one of the 6 M faces of its shape with probability proportional to the face's
+    area (so the density is uniform over the total area), then a uniform point (a, b) in [-1, 1]^2 on
+    that face: local point = (n_f + a u_f + b v_f) * s, world point = R local + t. The draw of faces
+    and of (a, b) is random; the map from them to points is differentiable, so gradients flow to the
+    centers, quaternions and half sizes (reparameterisation). The face choice itself carries no
+    gradient (it is discrete). Randomness comes only from ``generator``.
+    """
+    if validate:
+        centers, quaternions, half_sizes, exists = validate_cuboids(centers, quaternions, half_sizes, exists)
+    if not isinstance(n_points, int) or n_points < 1:
+        raise ValueError(f"n_points must be a positive integer, got {n_points!r}")
+    b, m = centers.shape[:2]
+    areas = cuboid_face_areas(half_sizes.detach())  # (B, M, 6)
+    if exists is not None:
+        areas = areas * exists[..., None].to(areas.dtype)
+        empty = ~exists.any(dim=1)
+        if empty.any():
+            raise ValueError(
+                f"exists marks no cuboid in shape {int(torch.nonzero(empty)[0])}; at least one cuboid "
+                "per shape must exist to sample its surface"
+            )
+    flat_face = torch.multinomial(areas.reshape(b, m * 6), n_points, replacement=True, generator=generator)
+    cuboid, face = flat_face // 6, flat_face % 6  # (B, n) each
+    ab = torch.rand(b, n_points, 2, generator=generator, dtype=centers.dtype, device=centers.device) * 2 - 1
+
+    normals_local = FACE_NORMALS.to(centers)[face]  # (B, n, 3)
+    tangents = FACE_TANGENTS.to(centers)[face]  # (B, n, 2, 3)
+    unit = normals_local + ab[..., 0:1] * tangents[..., 0, :] + ab[..., 1:2] * tangents[..., 1, :]
+
+    def pick(x: torch.Tensor) -> torch.Tensor:  # (B, M, ...) -> (B, n, ...) for each sample's cuboid
+        index = cuboid.reshape(b, n_points, *([1] * (x.dim() - 2))).expand(b, n_points, *x.shape[2:])
+        return torch.gather(x, 1, index)
+
+    R = pick(quaternion_to_rotation_matrix(quaternions, validate=False))  # (B, n, 3, 3)
+    points = torch.einsum("bnij,bnj->bni", R, unit * pick(half_sizes)) + pick(centers)
+    normals = torch.einsum("bnij,bnj->bni", R, normals_local)
+    return SurfaceSamples(points, normals, cuboid)
+
+
+# ----------------------------------------------------------------------------------------------
+# Container
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Cuboids:
+    """A batch of cuboids: centers (B, M, 3), unit quaternions (B, M, 4), half_sizes (B, M, 3) and an
+    optional boolean ``exists`` mask (B, M) (the paper's indicator delta_m, Sec. 3).
+
+    Construction validates and converts the fields (see :func:`validate_cuboids`); pass
+    ``validate=False`` to skip that in a hot loop. The functional API of this module stays the primary
+    one; the methods below are thin conveniences over it.
+    """
+
+    centers: torch.Tensor
+    quaternions: torch.Tensor
+    half_sizes: torch.Tensor
+    exists: torch.Tensor | None = None
+    validate: bool = True
+
+    def __post_init__(self) -> None:
+        if self.validate:
+            self.centers, self.quaternions, self.half_sizes, self.exists = validate_cuboids(
+                self.centers, self.quaternions, self.half_sizes, self.exists
+            )
+
+    @property
+    def batch_size(self) -> int:
+        """B, the number of shapes."""
+        return self.centers.shape[0]
+
+    @property
+    def num_cuboids(self) -> int:
+        """M, the number of cuboid slots per shape (existing or not)."""
+        return self.centers.shape[1]
+
+    def existing(self) -> torch.Tensor:
+        """The (B, M) boolean existence mask (all True when ``exists`` is None)."""
+        if self.exists is None:
+            return torch.ones(self.centers.shape[:2], dtype=torch.bool, device=self.centers.device)
+        return self.exists
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Cuboids:
+        """A copy on another device and/or float dtype (the mask stays boolean)."""
+        move = lambda x: x.to(device=device or x.device, dtype=dtype or x.dtype)  # noqa: E731
+        exists = None if self.exists is None else self.exists.to(device or self.exists.device)
+        return Cuboids(move(self.centers), move(self.quaternions), move(self.half_sizes), exists, validate=False)
+
+    def detach(self) -> Cuboids:
+        """A copy whose tensors are detached from the autograd graph."""
+        exists = None if self.exists is None else self.exists.detach()
+        return Cuboids(
+            self.centers.detach(), self.quaternions.detach(), self.half_sizes.detach(), exists, validate=False
+        )
+
+    def rotation_matrices(self) -> torch.Tensor:
+        """(B, M, 3, 3) rotation matrices (columns = local axes in world coordinates)."""
+        return quaternion_to_rotation_matrix(self.quaternions, validate=False)
+
+    def corners(self) -> torch.Tensor:
+        """(B, M, 8, 3) corners, see :func:`cuboid_corners`."""
+        return cuboid_corners(self.centers, self.quaternions, self.half_sizes, validate=False)
+
+    def face_normals(self) -> torch.Tensor:
+        """(B, M, 6, 3) world outward face normals, see :func:`cuboid_face_normals`."""
+        return cuboid_face_normals(self.quaternions, validate=False)
+
+    def sample_surface(self, n_points: int, generator: torch.Generator | None = None) -> SurfaceSamples:
+        """Area-weighted samples on the existing cuboids, see :func:`sample_cuboid_surfaces`."""
+        return sample_cuboid_surfaces(
+            self.centers, self.quaternions, self.half_sizes, n_points, self.exists, generator, validate=False
+        )
+
+    def to_trimesh(
+        self,
+        index: int = 0,
+        colors=None,
+        split: bool = False,
+    ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
+        """Mesh of the existing cuboids of shape ``index``, see :func:`cuboids_to_trimesh`."""
+        if not -self.batch_size <= index < self.batch_size:
+            raise IndexError(f"index {index} is out of range for a batch of {self.batch_size} shapes")
+        exists = None if self.exists is None else self.exists[index]
+        return cuboids_to_trimesh(
+            self.centers[index], self.quaternions[index], self.half_sizes[index], exists, colors, split
+        )
