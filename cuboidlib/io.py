@@ -1,0 +1,684 @@
+"""Reading and writing the shape formats a user brings, and the course's sample files.
+
+Supported inputs (all end up as a :class:`PointCloud`: points, normals, optional part labels):
+
+* **meshes** that trimesh reads (OBJ, PLY with faces, OFF, STL, GLB/GLTF):
+  :func:`load_mesh_as_point_cloud` samples points area-uniformly with the face normals;
+* **point clouds**: :func:`read_point_cloud` reads PLY (ASCII or binary, with or without normals,
+  optional per-vertex ``label``), text files of rows ``x y z [nx ny nz [label]]`` (the
+  ShapeNet-part "normal" layout; ``.txt``, ``.pts``, ``.xyz``) and NumPy ``.npy`` arrays of shape
+  (N, 3), (N, 6) (the layout of the authors' released data) or (N, 7) (with a label column);
+* **dataset layouts**: :func:`shapenet_part_files` (synset folders + ``train_test_split`` JSON
+  lists) with :func:`shapenet_part_labels` for its part ids, and :func:`authors_layout_files`
+  (``<category>_<split>.npy`` or ``.txt`` name lists + a ``<category>/`` folder of (N, 6) ``.npy``).
+
+:func:`load_point_cloud` is the one entry point used by the dataset and the command-line tool: it
+reads any of these, validates, subsamples, estimates missing normals (:mod:`cuboidlib.normals`) and
+normalises with the course convention (:mod:`cuboidlib.normalization`), keeping ``(center, scale)``
+so results can be written back in the user's coordinates.
+
+Writers: :func:`write_point_cloud` (PLY with normals and a ``label`` property, text rows, ``.npy``)
+and :func:`write_data_samples` (the committed ``data_samples/`` folder). Every error names the file
+and the problem (``FileNotFoundError`` for a missing file, ``ValueError`` otherwise).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+import numpy as np
+import trimesh
+
+from .normalization import normalize
+from .normals import estimate_normals, orient_normals
+from .shapes import CATEGORIES, PART_NAMES, make_shape, plot_shapes
+
+__all__ = [
+    "PointCloud",
+    "MESH_SUFFIXES",
+    "POINT_CLOUD_SUFFIXES",
+    "read_point_cloud",
+    "write_point_cloud",
+    "read_labels",
+    "load_mesh_as_point_cloud",
+    "load_point_cloud",
+    "is_mesh_file",
+    "validate_point_cloud",
+    "SHAPENET_PART_IDS",
+    "shapenet_part_labels",
+    "shapenet_part_files",
+    "authors_layout_files",
+    "write_shape_mesh",
+    "write_data_samples",
+]
+
+MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+POINT_CLOUD_SUFFIXES = (".ply", ".txt", ".pts", ".xyz", ".npy")
+
+#: ShapeNet-part "normal" layout: the 50 global part ids of the three categories used by the
+#: paper, in the order of ``PART_NAMES``. Table ids are (top, leg, support); as in the paper
+#: (Sec. 4.2) "support" is merged into "leg".
+SHAPENET_PART_IDS: dict[str, dict[int, int]] = {
+    "airplane": {0: 0, 1: 1, 2: 2, 3: 3},
+    "chair": {12: 0, 13: 1, 14: 2, 15: 3},
+    "table": {47: 0, 48: 1, 49: 1},
+}
+
+
+@dataclass
+class PointCloud:
+    """A point cloud with optional normals and labels.
+
+    Attributes:
+        points: (N, 3) float32.
+        normals: (N, 3) float32 unit normals, or None.
+        labels: (N,) int64 part labels, or None.
+        center: (3,) float64 and scale: float, the normalisation applied, so that the original
+            coordinates are ``points * scale + center`` (identity when not normalised).
+        source: the file it came from (for messages), or None.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    center: np.ndarray | None = None
+    scale: float = 1.0
+    source: str | None = None
+
+    def __post_init__(self):
+        if self.center is None:
+            self.center = np.zeros(3)
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+
+def _check_file(path) -> Path:
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a file")
+    return path
+
+
+def validate_point_cloud(points: np.ndarray, normals: np.ndarray | None = None, labels: np.ndarray | None = None,
+                         source: str = "point cloud", n_points: int | None = None) -> None:
+    """Raise ``ValueError`` naming ``source`` when the arrays are not a usable point cloud.
+
+    Checks: points (N, 3) with N >= 1 (and N >= ``n_points`` when given), finite, not all identical;
+    normals (N, 3), finite, no zero vectors; labels (N,) integers.
+    """
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{source}: points must have shape (N, 3), got {points.shape}")
+    n = points.shape[0]
+    if n == 0:
+        raise ValueError(f"{source}: contains no points")
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{source}: {int(bad.sum())} point(s) have NaN or infinite coordinates "
+                         f"(first at row {int(np.argmax(bad))}); clean or drop them first")
+    if n_points is not None and n < n_points:
+        raise ValueError(f"{source}: has only {n} points, fewer than the {n_points} asked for")
+    if np.ptp(points, axis=0).max() == 0:
+        raise ValueError(f"{source}: all {n} points are identical; the shape is degenerate")
+    if normals is not None:
+        if normals.shape != points.shape:
+            raise ValueError(f"{source}: normals have shape {normals.shape}, expected {points.shape} like the points")
+        bad = ~np.isfinite(normals).all(axis=1)
+        if bad.any():
+            raise ValueError(f"{source}: {int(bad.sum())} normal(s) are NaN or infinite (first at row {int(np.argmax(bad))})")
+        zero = np.linalg.norm(normals, axis=1) < 1e-12
+        if zero.any():
+            raise ValueError(f"{source}: {int(zero.sum())} normal(s) have zero length (first at row "
+                             f"{int(np.argmax(zero))}); drop the normals to have them estimated")
+    if labels is not None:
+        if labels.ndim != 1 or labels.shape[0] != n:
+            raise ValueError(f"{source}: {labels.shape[0] if labels.ndim else 0} labels for {n} points; "
+                             "expected one label per point")
+
+
+def _unit(normals: np.ndarray) -> np.ndarray:
+    return (normals / np.linalg.norm(normals, axis=1, keepdims=True)).astype(np.float32)
+
+
+def _as_labels(values: np.ndarray, source: str) -> np.ndarray:
+    values = np.asarray(values)
+    if values.dtype.kind == "f":
+        if not np.isfinite(values).all() or (values != np.round(values)).any():
+            raise ValueError(f"{source}: labels must be whole numbers")
+    return values.astype(np.int64)
+
+
+# ----------------------------------------------------------------------------------------- PLY
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+_NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
+_LABEL_NAMES = ("label", "scalar_label", "part", "class")
+
+
+def _parse_ply_header(path: Path, data: bytes):
+    if not data.startswith(b"ply"):
+        raise ValueError(f"{path}: not a PLY file (it does not start with 'ply')")
+    end = data.find(b"end_header")
+    if end < 0:
+        raise ValueError(f"{path}: PLY header has no 'end_header' line")
+    body = data.index(b"\n", end) + 1
+    fmt, elements = None, []
+    for line in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
+        tok = line.split()
+        if not tok or tok[0] in ("comment", "obj_info"):
+            continue
+        if tok[0] == "format":
+            fmt = tok[1]
+        elif tok[0] == "element":
+            elements.append({"name": tok[1], "count": int(tok[2]), "props": []})
+        elif tok[0] == "property":
+            if not elements:
+                raise ValueError(f"{path}: PLY property before any element")
+            if tok[1] == "list":
+                elements[-1]["props"].append((tok[4], "list", tok[2], tok[3]))
+            else:
+                if tok[1] not in _PLY_TYPES:
+                    raise ValueError(f"{path}: unknown PLY property type {tok[1]!r}")
+                elements[-1]["props"].append((tok[2], _PLY_TYPES[tok[1]]))
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
+    return fmt, elements, body
+
+
+def _read_ply_vertices(path: Path) -> tuple[dict, int]:
+    """The vertex properties of a PLY file as ``{name: (N,) array}`` and its number of faces."""
+    data = path.read_bytes()
+    fmt, elements, body = _parse_ply_header(path, data)
+    n_faces = sum(e["count"] for e in elements if e["name"] == "face")
+    names = [e["name"] for e in elements]
+    if "vertex" not in names:
+        raise ValueError(f"{path}: PLY file has no 'vertex' element")
+    vertex = elements[names.index("vertex")]
+    before = elements[: names.index("vertex")]
+    if any(p[1] == "list" for p in vertex["props"]):
+        raise ValueError(f"{path}: PLY vertex element with list properties is not supported")
+    if fmt == "ascii":
+        lines = data[body:].decode("ascii", errors="replace").splitlines()
+        start = sum(e["count"] for e in before)
+        rows = lines[start:start + vertex["count"]]
+        if len(rows) < vertex["count"]:
+            raise ValueError(f"{path}: PLY file is truncated ({len(rows)} of {vertex['count']} vertex rows)")
+        try:
+            table = np.array(" ".join(rows).split(), dtype=np.float64).reshape(vertex["count"], len(vertex["props"]))
+        except ValueError as exc:
+            raise ValueError(f"{path}: malformed ASCII PLY vertex rows ({exc})") from exc
+        return {p[0]: table[:, i] for i, p in enumerate(vertex["props"])}, n_faces
+    if any(p[1] == "list" for e in before for p in e["props"]):
+        raise ValueError(f"{path}: binary PLY with list elements before the vertices is not supported")
+    order = "<" if fmt == "binary_little_endian" else ">"
+    offset = body + sum(e["count"] * np.dtype([(p[0], order + p[1]) for p in e["props"]]).itemsize for e in before)
+    dtype = np.dtype([(p[0], order + p[1]) for p in vertex["props"]])
+    if offset + vertex["count"] * dtype.itemsize > len(data):
+        raise ValueError(f"{path}: PLY file is truncated (expected {vertex['count']} vertices)")
+    table = np.frombuffer(data, dtype=dtype, count=vertex["count"], offset=offset)
+    return {name: table[name].astype(np.float64) for name in dtype.names}, n_faces
+
+
+def _read_ply(path: Path) -> PointCloud:
+    props, n_faces = _read_ply_vertices(path)
+    if n_faces > 0:
+        raise ValueError(f"{path}: has {n_faces} faces, so it is a mesh, not a point cloud; "
+                         "use load_mesh_as_point_cloud (or load_point_cloud, which handles both)")
+    if not all(k in props for k in "xyz"):
+        raise ValueError(f"{path}: PLY vertices lack x, y, z properties (found {sorted(props)})")
+    points = np.stack([props[k] for k in "xyz"], axis=1)
+    normals = next((np.stack([props[k] for k in names], axis=1) for names in _NORMAL_NAMES
+                    if all(k in props for k in names)), None)
+    label = next((props[k] for k in _LABEL_NAMES if k in props), None)
+    return PointCloud(points, normals, None if label is None else _as_labels(label, str(path)), source=str(path))
+
+
+def _write_ply(path: Path, points, normals, labels, ascii: bool) -> None:
+    fields = [("x", "f4"), ("y", "f4"), ("z", "f4")]
+    if normals is not None:
+        fields += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
+    if labels is not None:
+        fields += [("label", "i4")]
+    table = np.empty(len(points), dtype=[(n, "<" + t) for n, t in fields])
+    for i, k in enumerate("xyz"):
+        table[k] = points[:, i]
+    if normals is not None:
+        for i, k in enumerate(("nx", "ny", "nz")):
+            table[k] = normals[:, i]
+    if labels is not None:
+        table["label"] = labels
+    kind = {"f4": "float", "i4": "int"}
+    header = ["ply", f"format {'ascii' if ascii else 'binary_little_endian'} 1.0",
+              "comment written by cuboidlib", f"element vertex {len(points)}"]
+    header += [f"property {kind[t]} {n}" for n, t in fields] + ["end_header"]
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        if ascii:
+            fmt = " ".join("%d" if t == "i4" else "%.7g" for _, t in fields)
+            np.savetxt(f, np.stack([table[n].astype(np.float64) for n, _ in fields], axis=1), fmt=fmt)
+        else:
+            f.write(table.tobytes())
+
+
+# ------------------------------------------------------------------------------- text and npy
+
+
+def _from_columns(table: np.ndarray, path: Path) -> PointCloud:
+    if table.ndim != 2 or table.shape[1] not in (3, 6, 7):
+        cols = table.shape[1] if table.ndim == 2 else table.ndim
+        raise ValueError(f"{path}: expected 3 (x y z), 6 (+ nx ny nz) or 7 (+ label) columns, got {cols}")
+    normals = table[:, 3:6] if table.shape[1] >= 6 else None
+    labels = _as_labels(table[:, 6], str(path)) if table.shape[1] == 7 else None
+    return PointCloud(table[:, :3].astype(np.float64), normals, labels, source=str(path))
+
+
+def _read_text(path: Path) -> PointCloud:
+    rows = [ln.replace(",", " ").split() for ln in path.read_text(errors="replace").splitlines()]
+    rows = [r for r in rows if r and not r[0].startswith("#")]
+    if not rows:
+        raise ValueError(f"{path}: contains no points")
+    widths = {len(r) for r in rows}
+    if len(widths) > 1:
+        first = next(i for i, r in enumerate(rows) if len(r) != len(rows[0]))
+        raise ValueError(f"{path}: rows have different numbers of columns ({len(rows[0])} and "
+                         f"{len(rows[first])} at data row {first})")
+    try:
+        table = np.array(rows, dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{path}: non-numeric value in the rows ({exc})") from exc
+    return _from_columns(table, path)
+
+
+def _read_npy(path: Path) -> PointCloud:
+    try:
+        table = np.load(path, allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001 - re-raised with the file name
+        raise ValueError(f"{path}: not a readable NumPy array file ({exc})") from exc
+    if table.dtype.kind not in "fiu":
+        raise ValueError(f"{path}: expected a numeric array, got dtype {table.dtype}")
+    if table.size == 0:
+        raise ValueError(f"{path}: contains no points")
+    return _from_columns(table.astype(np.float64), path)
+
+
+def read_point_cloud(path: str | os.PathLike) -> PointCloud:
+    """Read a point cloud file as stored (no normalisation, no estimation).
+
+    Formats by suffix: ``.ply`` (ASCII or binary; vertex properties x, y, z, optional nx, ny, nz and
+    label), ``.txt``/``.pts``/``.xyz`` (whitespace or comma separated rows ``x y z [nx ny nz
+    [label]]``) and ``.npy`` (array (N, 3), (N, 6) or (N, 7)). Normals are renormalised to unit
+    length; labels are int64.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: unknown suffix, unreadable or malformed content, no points, NaN/inf values,
+            all points identical, zero normals.
+    """
+    path = _check_file(path)
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        pc = _read_ply(path)
+    elif suffix in (".txt", ".pts", ".xyz"):
+        pc = _read_text(path)
+    elif suffix == ".npy":
+        pc = _read_npy(path)
+    else:
+        raise ValueError(f"{path}: unknown point cloud format {suffix!r}; expected one of {POINT_CLOUD_SUFFIXES}")
+    validate_point_cloud(pc.points, pc.normals, pc.labels, str(path))
+    pc.points = pc.points.astype(np.float32)
+    if pc.normals is not None:
+        pc.normals = _unit(pc.normals)
+    return pc
+
+
+def read_labels(path: str | os.PathLike) -> np.ndarray:
+    """Read a label file with one integer per line (e.g. ShapeNet-part ``.seg``) as (N,) int64."""
+    path = _check_file(path)
+    tokens = path.read_text(errors="replace").split()
+    try:
+        values = np.array(tokens, dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{path}: label file holds a non-numeric value ({exc})") from exc
+    return _as_labels(values, str(path))
+
+
+def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None, ascii: bool = False) -> Path:
+    """Write points (N, 3), optional normals (N, 3) and labels (N,) by the file suffix.
+
+    ``.ply``: binary little-endian (or ASCII with ``ascii=True``) with float x, y, z, nx, ny, nz and
+    an int ``label`` property; ``.txt``: rows ``x y z [nx ny nz [label]]``; ``.npy``: an (N, 3),
+    (N, 6) or (N, 7) float array. Labels in ``.txt``/``.npy`` need normals (the column layout).
+    """
+    path = Path(path)
+    points = np.asarray(points, dtype=np.float64)
+    normals = None if normals is None else np.asarray(normals, dtype=np.float64)
+    labels = None if labels is None else np.asarray(labels)
+    validate_point_cloud(points, normals, labels, f"{path} (writing)")
+    suffix = path.suffix.lower()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".ply":
+        _write_ply(path, points, normals, None if labels is None else labels.astype(np.int64), ascii)
+        return path
+    if suffix not in (".txt", ".npy"):
+        raise ValueError(f"{path}: unknown point cloud format {suffix!r}; write .ply, .txt or .npy")
+    if labels is not None and normals is None:
+        raise ValueError(f"{path}: the {suffix} layout stores labels in column 7, after normals; give normals too")
+    cols = [points] + ([normals] if normals is not None else []) + ([labels[:, None]] if labels is not None else [])
+    table = np.concatenate(cols, axis=1)
+    if suffix == ".npy":
+        np.save(path, table.astype(np.float32))
+    else:
+        fmt = ["%.6f"] * (table.shape[1] - (labels is not None)) + (["%d"] if labels is not None else [])
+        np.savetxt(path, table, fmt=fmt)
+    return path
+
+
+# --------------------------------------------------------------------------------------- meshes
+
+
+def _load_mesh(path: Path) -> trimesh.Trimesh:
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception as exc:  # noqa: BLE001 - re-raised with the file name
+        raise ValueError(f"{path}: unreadable mesh ({type(exc).__name__}: {exc})") from exc
+    if isinstance(loaded, trimesh.Scene):  # e.g. GLB: bake every node's transform into one mesh
+        vertices, faces, count = [], [], 0
+        for node in loaded.graph.nodes_geometry:
+            transform, name = loaded.graph[node]
+            geom = loaded.geometry.get(name)
+            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
+                vertices.append(trimesh.transform_points(geom.vertices, transform))
+                faces.append(geom.faces + count)
+                count += len(geom.vertices)
+        if not faces:
+            raise ValueError(f"{path}: the mesh is empty (the file holds no triangles)")
+        loaded = trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise ValueError(f"{path}: contains no faces ({type(loaded).__name__}); for a point cloud use read_point_cloud")
+    if len(loaded.faces) == 0:
+        raise ValueError(f"{path}: the mesh is empty (the file holds no triangles)")
+    if not np.isfinite(loaded.vertices).all():
+        raise ValueError(f"{path}: the mesh has NaN or infinite vertex coordinates")
+    if loaded.area <= 0:
+        raise ValueError(f"{path}: the mesh has zero surface area (all triangles are degenerate)")
+    return loaded
+
+
+def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int = 0,
+                             orient: str = "auto") -> PointCloud:
+    """Sample ``n_points`` points area-uniformly on a mesh file, with the normals of their faces.
+
+    Args:
+        path: any mesh trimesh reads (OBJ, PLY with faces, OFF, STL, GLB/GLTF).
+        n_points: number of points N.
+        seed: seed of the sampling.
+        orient: ``"auto"``: for a watertight mesh with consistent winding, trust the winding (flipped
+            as a whole if the enclosed volume is negative), otherwise orient the sampled normals
+            outward with :func:`cuboidlib.normals.orient_normals`; ``"winding"``: always trust
+            the face winding; ``"visibility"``: always re-orient.
+
+    Returns:
+        A :class:`PointCloud` in the file's coordinates (not normalised); its labels are those of
+        the sampled faces when the file is a PLY mesh with a per-face ``label`` property (as
+        :func:`write_shape_mesh` writes), otherwise None.
+    """
+    path = _check_file(path)
+    if n_points < 1:
+        raise ValueError(f"n_points must be a positive integer, got {n_points}")
+    if orient not in ("auto", "winding", "visibility"):
+        raise ValueError(f"orient must be 'auto', 'winding' or 'visibility', got {orient!r}")
+    mesh = _load_mesh(path)
+    rng = np.random.default_rng(seed)
+    areas = mesh.area_faces
+    cdf = np.cumsum(areas)
+    face = np.minimum(np.searchsorted(cdf, rng.random(n_points) * cdf[-1], side="right"), len(areas) - 1)
+    tri = mesh.vertices[mesh.faces[face]]
+    r1, r2 = np.sqrt(rng.random(n_points)), rng.random(n_points)
+    points = (1 - r1)[:, None] * tri[:, 0] + (r1 * (1 - r2))[:, None] * tri[:, 1] + (r1 * r2)[:, None] * tri[:, 2]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    closed = mesh.is_watertight and mesh.is_winding_consistent
+    if orient == "visibility" or (orient == "auto" and not closed):
+        normals = orient_normals(points, normals)
+    elif closed and mesh.volume < 0:
+        normals = -normals
+    validate_point_cloud(points, normals, None, str(path))
+    face_labels = _ply_face_labels(mesh)
+    labels = None if face_labels is None else face_labels[face]
+    return PointCloud(points.astype(np.float32), normals.astype(np.float32), labels, source=str(path))
+
+
+def _ply_face_labels(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    """Per-face ``label`` of a PLY mesh (as :func:`write_shape_mesh` writes), if there is one."""
+    try:
+        labels = np.asarray(mesh.metadata["_ply_raw"]["face"]["data"]["label"]).reshape(-1)
+    except (KeyError, ValueError, TypeError, IndexError):
+        return None
+    return labels.astype(np.int64) if len(labels) == len(mesh.faces) else None
+
+
+def is_mesh_file(path: str | os.PathLike) -> bool:
+    """True for mesh files (OBJ, OFF, STL, GLB/GLTF, and PLY files that have faces)."""
+    path = _check_file(path)
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        return _read_ply_vertices(path)[1] > 0
+    return suffix in MESH_SUFFIXES
+
+
+def load_point_cloud(
+    path: str | os.PathLike,
+    n_points: int | None = None,
+    seed: int = 0,
+    normalize_shape: bool = True,
+    normals: str = "auto",
+    labels_path: str | os.PathLike | None = None,
+    k: int = 16,
+) -> PointCloud:
+    """Read any supported file as a validated, normalised point cloud with normals.
+
+    Args:
+        path: a point cloud (``.ply`` without faces, ``.txt``, ``.pts``, ``.xyz``, ``.npy``) or a mesh
+            (``.obj``, ``.off``, ``.stl``, ``.glb``, ``.gltf``, ``.ply`` with faces).
+        n_points: for meshes, the number of points to sample (required); for point clouds, a random
+            subset of this size is kept (an error if the file has fewer points).
+        seed: seed of the sampling / subsampling.
+        normalize_shape: apply the course normalisation (bounding-box centre to the origin, diagonal
+            1) and record ``(center, scale)``.
+        normals: ``"auto"`` (use the file's normals, estimate them when missing), ``"estimate"``
+            (always estimate) or ``"file"`` (require them in the file).
+        labels_path: an optional separate label file (one integer per point, e.g. ``.seg``).
+        k: neighbours for normal estimation.
+    """
+    path = _check_file(path)
+    if normals not in ("auto", "estimate", "file"):
+        raise ValueError(f"normals must be 'auto', 'estimate' or 'file', got {normals!r}")
+    is_mesh = is_mesh_file(path)
+    if is_mesh:
+        if n_points is None:
+            raise ValueError(f"{path}: is a mesh; give n_points to say how many points to sample")
+        pc = load_mesh_as_point_cloud(path, n_points, seed)
+    else:
+        pc = read_point_cloud(path)
+    if labels_path is not None:
+        pc.labels = read_labels(labels_path)
+        validate_point_cloud(pc.points, None, pc.labels, f"{path} with labels {labels_path}")
+    if normals == "file" and pc.normals is None:
+        raise ValueError(f"{path}: has no normals (and normals='file' forbids estimating them)")
+    if n_points is not None and not is_mesh:
+        validate_point_cloud(pc.points, None, None, str(path), n_points=n_points)
+        if n_points < len(pc):
+            keep = np.sort(np.random.default_rng(seed).choice(len(pc), n_points, replace=False))
+            pc.points = pc.points[keep]
+            pc.normals = None if pc.normals is None else pc.normals[keep]
+            pc.labels = None if pc.labels is None else pc.labels[keep]
+    if normalize_shape:
+        pc.points, pc.center, scale = normalize(pc.points.astype(np.float64))
+        pc.points, pc.scale = pc.points.astype(np.float32), float(scale)
+    if pc.normals is None or normals == "estimate":
+        if len(pc) < 3:
+            raise ValueError(f"{path}: needs at least 3 points to estimate normals, has {len(pc)}")
+        pc.normals = estimate_normals(pc.points, k=min(k, len(pc))).astype(np.float32)
+    return pc
+
+
+# ---------------------------------------------------------------------------- dataset layouts
+
+
+def shapenet_part_labels(raw: np.ndarray, category: str, numbering: str = "global") -> np.ndarray:
+    """Map ShapeNet-part part ids to indices into ``PART_NAMES[category]`` (table support -> leg).
+
+    ``numbering="global"``: the 0-49 ids of the "normal" layout's 7th column; ``"one-based"``:
+    the per-category 1..K ids of the original ``.seg`` files.
+    """
+    if category not in SHAPENET_PART_IDS:
+        raise ValueError(f"ShapeNet-part labels are known for {tuple(SHAPENET_PART_IDS)}, not {category!r}")
+    ids = SHAPENET_PART_IDS[category]
+    if numbering == "one-based":
+        first = min(ids)
+        ids = {k - first + 1: v for k, v in ids.items()}
+    elif numbering != "global":
+        raise ValueError(f"numbering must be 'global' or 'one-based', got {numbering!r}")
+    raw = np.asarray(raw)
+    unknown = sorted(set(np.unique(raw).tolist()) - set(ids))
+    if unknown:
+        raise ValueError(f"labels {unknown[:5]} are not {numbering} ShapeNet-part ids of {category!r} "
+                         f"(expected {sorted(ids)})")
+    lut = np.zeros(max(ids) + 1, dtype=np.int64)
+    for k, v in ids.items():
+        lut[k] = v
+    return lut[raw]
+
+
+def shapenet_part_files(root: str | os.PathLike, category: str, split: str = "train") -> list[Path]:
+    """Files of ``category`` in a ShapeNet-part "normal" folder for one split.
+
+    Layout: ``root/synsetoffset2category.txt`` (lines ``Chair 03001627``),
+    ``root/train_test_split/shuffled_<split>_file_list.json`` (entries
+    ``shape_data/<synset>/<id>``) and ``root/<synset>/<id>.txt``. ``split`` is "train", "val",
+    "test" or "trainval".
+    """
+    root = Path(root)
+    cat_file = _check_file(root / "synsetoffset2category.txt")
+    synsets = {}
+    for line in cat_file.read_text().splitlines():
+        tok = line.split()
+        if len(tok) >= 2:
+            synsets[tok[0].lower()] = tok[1]
+    if category.lower() not in synsets:
+        raise ValueError(f"{cat_file}: no category {category!r} (it lists {sorted(synsets)})")
+    synset = synsets[category.lower()]
+    splits = ("train", "val") if split == "trainval" else (split,)
+    files = []
+    for s in splits:
+        if s not in ("train", "val", "test"):
+            raise ValueError(f"split must be 'train', 'val', 'test' or 'trainval', got {split!r}")
+        list_file = _check_file(root / "train_test_split" / f"shuffled_{s}_file_list.json")
+        try:
+            entries = json.loads(list_file.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{list_file}: not valid JSON ({exc})") from exc
+        for entry in entries:
+            parts = str(entry).split("/")
+            if len(parts) >= 2 and parts[-2] == synset:
+                files.append(root / synset / f"{parts[-1]}.txt")
+    missing = [f for f in files if not f.is_file()]
+    if missing:
+        raise FileNotFoundError(f"{missing[0]}: listed in the {split} split but missing "
+                                f"({len(missing)} listed file(s) missing)")
+    return files
+
+
+def authors_layout_files(root: str | os.PathLike, category: str, split: str = "train") -> list[Path]:
+    """Files of one split in the layout of the authors' released data.
+
+    Layout: ``root/<category>_<split>.npy`` (a NumPy array of file names) or
+    ``root/<category>_<split>.txt`` (one name per line), and ``root/<category>/<name>`` holding an
+    (N, 6) array (xyz + normal); a name without suffix gets ``.npy``.
+    """
+    root = Path(root)
+    npy, txt = root / f"{category}_{split}.npy", root / f"{category}_{split}.txt"
+    if npy.is_file():
+        try:
+            names = [str(n) for n in np.load(npy, allow_pickle=False).ravel()]
+        except ValueError as exc:
+            raise ValueError(f"{npy}: the file list must be an array of strings saved without pickle ({exc})") from exc
+    elif txt.is_file():
+        names = [ln.strip() for ln in txt.read_text().splitlines() if ln.strip()]
+    else:
+        raise FileNotFoundError(f"{npy}: no such file list (nor {txt.name})")
+    files = [root / category / (n if Path(n).suffix else n + ".npy") for n in names]
+    missing = [f for f in files if not f.is_file()]
+    if missing:
+        raise FileNotFoundError(f"{missing[0]}: listed in the {split} split but missing "
+                                f"({len(missing)} listed file(s) missing)")
+    return files
+
+
+# --------------------------------------------------------------------------------- data_samples
+
+
+def write_shape_mesh(path: str | os.PathLike, shape) -> Path:
+    """Write a :class:`cuboidlib.shapes.Shape` as a binary PLY mesh: its parts' meshes concatenated
+    (not boolean-merged), vertices coloured by part (``PART_COLORS``), an int ``label`` per face."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    shape.mesh().export(str(path), file_type="ply", encoding="binary")
+    return path
+
+
+def write_data_samples(out_dir: str | os.PathLike, n_per_category: int = 3, n_points: int = 2048,
+                       seed: int = 0, figure: bool = True) -> list[Path]:
+    """Write the course's sample files: per category ``n_per_category`` shapes of distinct coarse
+    structures (the first ones of the collection ``seed`` with a structure not taken yet).
+
+    Writes ``meshes/<category>_<i>.ply`` (concatenated part meshes coloured by part),
+    ``points/<category>_<i>.ply`` (``n_points`` points with normals and labels), ``index.csv``
+    (file, category, collection index, structure, structure id, part names) and, with ``figure``,
+    ``samples.png`` (a part-coloured scatter of every sample). Returns the written paths.
+    """
+    out = Path(out_dir)
+    written, rows, chosen = [], [], []
+    for category in CATEGORIES:
+        seen, index, found = set(), 0, 0
+        while found < n_per_category:
+            shape = make_shape(category, index, n_points, seed)
+            if shape.structure_id not in seen or index >= 50 * n_per_category:
+                seen.add(shape.structure_id)
+                name = f"{category}_{found}"
+                written.append(write_shape_mesh(out / "meshes" / f"{name}.ply", shape))
+                written.append(write_point_cloud(out / "points" / f"{name}.ply", shape.points, shape.normals,
+                                                 shape.labels))
+                rows.append([f"points/{name}.ply", f"meshes/{name}.ply", category, index, shape.structure,
+                             shape.structure_id, " ".join(PART_NAMES[category])])
+                chosen.append(shape)
+                found += 1
+            index += 1
+    index_file = out / "index.csv"
+    with open(index_file, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["points", "mesh", "category", "collection_index", "structure", "structure_id", "part_names"])
+        w.writerows(rows)
+    written.append(index_file)
+    if figure:
+        import matplotlib
+
+        if "matplotlib.pyplot" not in sys.modules:
+            matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig = plot_shapes(chosen, titles=[s.structure for s in chosen], ncols=n_per_category, point_size=1.5)
+        fig.savefig(out / "samples.png", dpi=90)
+        plt.close(fig)
+        written.append(out / "samples.png")
+    return written

@@ -1,0 +1,109 @@
+"""The one normalisation convention used for every shape in cuboidlib.
+
+The paper trains on shapes that are "pre-aligned and normalized to the unit scale" (Sec. 4.1)
+without saying which unit scale. cuboidlib fixes it as follows, for procedural shapes, files a user
+brings and everything in between:
+
+* Axes (ShapeNet-like): **+y is up**, shapes **face +z**, **x** points to the side. Augmentation
+  rotates about the vertical (+y) axis. (The paper writes "around the z-axis" for its animal set,
+  whose up axis is z; the rotation is the same physical operation, about the up axis.)
+* Translation: the centre of the axis-aligned bounding box moves to the origin,
+  ``center = (min + max) / 2`` over the points.
+* Scale: uniform, so that the bounding-box **diagonal has length 1**,
+  ``scale = |max - min|`` (the diagonal length before normalisation).
+
+So ``normalized = (points - center) / scale`` and ``original = normalized * scale + center``.
+Normals are unchanged by this map (a translation and a positive uniform scale). A normalised shape
+fits in the cube ``[-0.5, 0.5]^3``; its bounding box is centred at the origin with diagonal 1.
+Keep ``(center, scale)`` to write results back in the user's original coordinates
+(:func:`denormalize`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ._checks import as_float_tensor, check_finite
+
+__all__ = ["normalize", "denormalize", "bounding_box"]
+
+# Diagonals shorter than this (relative to the largest coordinate magnitude) count as "all points identical".
+_DEGENERATE_RTOL = 1e-9
+
+
+def _to_tensor(points, name: str) -> tuple[torch.Tensor, bool]:
+    is_numpy = not isinstance(points, torch.Tensor)
+    t = as_float_tensor(np.asarray(points) if is_numpy else points, name)
+    if t.dim() not in (2, 3) or t.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3) or (B, N, 3), got shape {tuple(t.shape)}")
+    return t, is_numpy
+
+
+def bounding_box(points: torch.Tensor | np.ndarray) -> tuple:
+    """Axis-aligned bounding box ``(lo, hi)`` of ``points`` (N, 3) or (B, N, 3); each is (3,) or (B, 3)."""
+    t, is_numpy = _to_tensor(points, "points")
+    if t.shape[-2] == 0:
+        raise ValueError("points is empty (0 points); at least one point is required")
+    lo, hi = t.amin(dim=-2), t.amax(dim=-2)
+    return (lo.numpy(), hi.numpy()) if is_numpy else (lo, hi)
+
+
+def normalize(points: torch.Tensor | np.ndarray) -> tuple:
+    """Centre the bounding box at the origin and scale its diagonal to length 1.
+
+    Args:
+        points: (N, 3) or (B, N, 3) tensor or array (each batch entry is normalised on its own).
+
+    Returns:
+        ``(normalized, center, scale)``: normalized has the shape of ``points``, center is (3,) or
+        (B, 3), scale is a scalar () or (B,), all of the input's kind (numpy in, numpy out) and dtype,
+        such that ``normalized = (points - center) / scale``.
+
+    Raises:
+        ValueError: on a wrong shape, an empty cloud, NaN/inf values, or all points identical.
+    """
+    t, is_numpy = _to_tensor(points, "points")
+    if t.shape[-2] == 0:
+        raise ValueError("points is empty (0 points); at least one point is required")
+    check_finite(t, "points")
+    lo, hi = t.amin(dim=-2), t.amax(dim=-2)
+    center = (lo + hi) / 2
+    scale = torch.linalg.vector_norm(hi - lo, dim=-1)
+    magnitude = t.detach().abs().amax(dim=(-2, -1)).clamp_min(1.0)
+    degenerate = scale <= _DEGENERATE_RTOL * magnitude
+    if degenerate.any():
+        which = "" if t.dim() == 2 else f" (batch entry {int(torch.nonzero(degenerate)[0])})"
+        raise ValueError(
+            f"points are all identical{which}: the bounding box has zero size, so the shape cannot be "
+            "normalised to unit diagonal"
+        )
+    normalized = (t - center.unsqueeze(-2)) / scale[..., None, None]
+    if is_numpy:
+        return normalized.numpy(), center.numpy(), scale.numpy()
+    return normalized, center, scale
+
+
+def denormalize(points: torch.Tensor | np.ndarray, center, scale) -> torch.Tensor | np.ndarray:
+    """Map normalised points back to the original coordinates: ``points * scale + center``.
+
+    Args:
+        points: (N, 3) or (B, N, 3) normalised points.
+        center: (3,) or (B, 3), as returned by :func:`normalize`.
+        scale: scalar or (B,), as returned by :func:`normalize`.
+
+    Returns:
+        Points of the same shape and kind (numpy or torch) as ``points``.
+    """
+    t, is_numpy = _to_tensor(points, "points")
+    c = as_float_tensor(np.asarray(center) if not isinstance(center, torch.Tensor) else center, "center")
+    s = as_float_tensor(np.asarray(scale) if not isinstance(scale, torch.Tensor) else scale, "scale")
+    c, s = c.to(dtype=t.dtype, device=t.device), s.to(dtype=t.dtype, device=t.device)
+    if c.shape != t.shape[:-2] + (3,):
+        raise ValueError(f"center must have shape {tuple(t.shape[:-2]) + (3,)}, got {tuple(c.shape)}")
+    if s.shape != t.shape[:-2]:
+        raise ValueError(f"scale must have shape {tuple(t.shape[:-2])}, got {tuple(s.shape)}")
+    if (s <= 0).any():
+        raise ValueError("scale must be positive (it is the bounding-box diagonal before normalisation)")
+    out = t * s[..., None, None] + c.unsqueeze(-2)
+    return out.numpy() if is_numpy else out

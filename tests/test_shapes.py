@@ -1,0 +1,198 @@
+import numpy as np
+import pytest
+
+from cuboidlib import shapes
+from cuboidlib.shapes import CATEGORIES, PART_NAMES, STRUCTURES, ShapeCollection, make_collection, make_shape
+from cuboidlib.solids import union_sdf
+
+N_SHAPES = 6  # per category, for the per-point geometric checks
+
+
+@pytest.fixture(scope="module")
+def samples():
+    return {c: [make_shape(c, i, n_points=1024, seed=3) for i in range(N_SHAPES)] for c in CATEGORIES}
+
+
+def _own_part(shape, i_point):
+    """Index of the part of the point's label whose surface it lies on."""
+    p = shape.points[i_point].astype(np.float64)[None]
+    cands = [j for j, s in enumerate(shape.parts) if s.label == shape.labels[i_point]]
+    return min(cands, key=lambda j: abs(shape.parts[j].sdf(p)[0]))
+
+
+def test_part_names_and_structures_follow_the_paper_categories():
+    assert PART_NAMES["chair"] == ("back", "seat", "leg", "arm")
+    assert PART_NAMES["table"] == ("top", "leg")
+    assert PART_NAMES["airplane"] == ("body", "wing", "tail", "engine")
+    assert PART_NAMES["animal"] == ("body", "head", "leg", "tail")
+    assert set(STRUCTURES) == set(CATEGORIES)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_every_point_has_a_label_a_unit_normal_and_the_shape_is_normalised(samples, category):
+    for s in samples[category]:
+        assert s.points.shape == (1024, 3) and s.points.dtype == np.float32
+        assert s.normals.shape == (1024, 3) and s.normals.dtype == np.float32
+        assert s.labels.shape == (1024,) and s.labels.dtype == np.int64
+        assert s.labels.min() >= 0 and s.labels.max() < len(PART_NAMES[category])
+        np.testing.assert_allclose(np.linalg.norm(s.normals, axis=1), 1.0, atol=1e-5)
+        lo, hi = s.points.min(0), s.points.max(0)
+        np.testing.assert_allclose((lo + hi) / 2, 0.0, atol=1e-6)
+        assert np.linalg.norm(hi - lo) == pytest.approx(1.0, abs=1e-5)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_points_are_on_the_outer_surface_with_outward_normals(samples, category):
+    eps = 1e-4
+    for s in samples[category]:
+        p, n = s.points.astype(np.float64), s.normals.astype(np.float64)
+        d = union_sdf(s.parts, p)
+        # on the union's boundary: not buried inside any other part
+        assert np.abs(d).max() < 1e-5, "a point lies inside the union, not on its outer surface"
+        # outward with respect to the part the point was sampled on
+        for i in range(0, len(p), 7):
+            part = s.parts[_own_part(s, i)]
+            assert part.sdf(p[i:i + 1] + eps * n[i:i + 1])[0] > 0 and part.sdf(p[i:i + 1] - eps * n[i:i + 1])[0] < 0
+        # ... and with respect to the whole shape: stepping along the normal leaves the union
+        # (a point at a concave junction can step into a neighbouring part, hence the 1 % margin)
+        assert (union_sdf(s.parts, p + eps * n) > 0).mean() > 0.99
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_no_points_on_faces_where_two_parts_touch(samples, category):
+    # A point on part A that also lies on the surface of part B, with B's outward normal opposite
+    # to A's, sits on an internal contact face (buried between the parts).
+    h = 1e-6
+    for s in samples[category]:
+        p, n = s.points.astype(np.float64), s.normals.astype(np.float64)
+        for part in s.parts:
+            near = np.abs(part.sdf(p)) < 1e-5
+            if not near.any():
+                continue
+            q = p[near]
+            grad = np.stack([(part.sdf(q + h * e) - part.sdf(q - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+            grad /= np.linalg.norm(grad, axis=1, keepdims=True)
+            assert ((grad * n[near]).sum(axis=1) > -0.99).all()
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_structure_strings_match_the_parts_present(category):
+    coll = make_collection(category, 40, n_points=512, seed=1, use_cache=False)
+    assert len(set(coll.structure_ids.tolist())) >= 3, "several coarse structures in a small collection"
+    for st, sid, lab in zip(coll.structures, coll.structure_ids, coll.labels):
+        coarse = STRUCTURES[category][sid]
+        present = {PART_NAMES[category][k] for k in np.unique(lab)}
+        if category == "chair":
+            assert st.startswith(coarse.split("+")[0])
+            assert ("+arms" in st) == ("arm" in present) == coarse.endswith("+arms")
+            assert {"back", "seat", "leg"} <= present
+        elif category == "table":
+            assert present == {"top", "leg"} and st.startswith(coarse)
+        elif category == "airplane":
+            assert ("engine" in present) == (not coarse.startswith("engines0"))
+            assert ("+t-tail" in st) == coarse.endswith("+t-tail")
+            assert {"body", "wing", "tail"} <= present
+        else:
+            assert present == set(PART_NAMES["animal"]) and st.split("+")[0] == coarse
+
+
+def test_shapes_are_upright_and_face_plus_z(samples):
+    for s in samples["chair"]:
+        mean = {k: s.points[s.labels == i].mean(0) for i, k in enumerate(PART_NAMES["chair"]) if (s.labels == i).any()}
+        assert mean["back"][1] > mean["seat"][1] > mean["leg"][1]
+        assert mean["back"][2] < mean["seat"][2], "the back is behind the seat (fronts face +z)"
+    for s in samples["table"]:
+        assert s.points[s.labels == 0, 1].min() > s.points[s.labels == 1, 1].mean()
+    for s in samples["airplane"]:
+        assert s.labels[np.argmax(s.points[:, 2])] == 0, "the nose (body) is the front-most point"
+        assert s.points[s.labels == 2, 2].mean() < s.points[s.labels == 1, 2].mean(), "tail behind the wings"
+        assert np.ptp(s.points[s.labels == 1, 0]) > np.ptp(s.points[s.labels == 1, 2]), "wings span x"
+    for s in samples["animal"]:
+        assert s.points[s.labels == 1, 2].mean() > s.points[s.labels == 0, 2].mean() > s.points[s.labels == 3, 2].mean()
+        assert s.labels[np.argmin(s.points[:, 1])] == 2, "the lowest point is a foot"
+
+
+def test_generation_is_deterministic_and_prefix_stable(tmp_path):
+    a = make_shape("chair", 5, n_points=256, seed=2)
+    b = make_shape("chair", 5, n_points=256, seed=2)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    c = make_shape("chair", 5, n_points=256, seed=3)
+    assert not np.array_equal(a.points, c.points)
+    small = make_collection("animal", 3, 128, seed=4, use_cache=False)
+    big = make_collection("animal", 5, 128, seed=4, use_cache=False)
+    np.testing.assert_array_equal(small.points, big.points[:3])
+    np.testing.assert_array_equal(small.structures, big.structures[:3])
+    one = make_shape("animal", 2, 128, seed=4)
+    np.testing.assert_array_equal(one.points, big.points[2])
+    assert one.structure == big.structures[2] and one.structure_id == big.structure_ids[2]
+
+
+def test_collection_save_load_round_trip_without_pickle(tmp_path):
+    coll = make_collection("table", 4, 64, seed=0, use_cache=False)
+    path = coll.save(tmp_path / "t.npz")
+    with np.load(path, allow_pickle=False) as z:
+        assert z["points"].shape == (4, 64, 3)
+    back = ShapeCollection.load(path)
+    assert back.category == "table" and back.seed == 0 and len(back) == 4
+    for name in ("points", "normals", "labels", "structures", "structure_ids"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(coll, name))
+
+
+def test_collections_are_cached_by_their_arguments(tmp_path, monkeypatch):
+    coll = make_collection("airplane", 3, 64, seed=5, cache_dir=tmp_path)
+    files = list(tmp_path.glob("*.npz"))
+    assert len(files) == 1 and "airplane" in files[0].name and "seed5" in files[0].name
+
+    def fail(*args, **kwargs):
+        raise AssertionError("a cached collection must not be regenerated")
+
+    monkeypatch.setattr(shapes, "_sample_shape", fail)
+    again = make_collection("airplane", 3, 64, seed=5, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.points, coll.points)
+    with pytest.raises(AssertionError, match="regenerated"):
+        make_collection("airplane", 3, 64, seed=6, cache_dir=tmp_path)  # another key
+    monkeypatch.setenv("CUBOIDLIB_CACHE", str(tmp_path / "env"))
+    assert shapes.default_cache_dir() == tmp_path / "env"
+
+
+def test_a_corrupt_cache_file_is_regenerated(tmp_path):
+    coll = make_collection("chair", 2, 32, seed=0, cache_dir=tmp_path)
+    (path,) = tmp_path.glob("*.npz")
+    path.write_bytes(b"not an npz file")
+    again = make_collection("chair", 2, 32, seed=0, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.points, coll.points)
+
+
+def test_mesh_of_a_shape_matches_its_points(samples):
+    s = samples["chair"][0]
+    mesh = s.mesh()
+    assert len(mesh.faces) == len(mesh.face_attributes["label"])
+    assert set(np.unique(mesh.face_attributes["label"])) == set(np.unique(s.labels))
+    np.testing.assert_allclose(mesh.bounds[0], s.points.min(0), atol=0.02)
+    np.testing.assert_allclose(mesh.bounds[1], s.points.max(0), atol=0.02)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="category must be one of"):
+        make_shape("sofa")
+    with pytest.raises(ValueError, match="n_points"):
+        make_shape("chair", 0, n_points=0)
+    with pytest.raises(ValueError, match="non-negative"):
+        make_shape("chair", 0, seed=-1)
+    with pytest.raises(ValueError, match="n_shapes and n_points"):
+        make_collection("chair", 0, use_cache=False)
+    with pytest.raises(FileNotFoundError, match="no such collection"):
+        ShapeCollection.load("/nonexistent/c.npz")
+
+
+def test_plot_shapes_draws_one_panel_per_shape(samples):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shown = [samples["chair"][0], samples["animal"][0]]
+    fig = shapes.plot_shapes(shown, titles=["a", "b"], ncols=2)
+    assert len(fig.axes) == 2
+    plt.close(fig)
