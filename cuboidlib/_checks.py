@@ -85,7 +85,7 @@ def check_same_leading(named: dict, sizes: dict, what: str) -> None:
     for arg, s in named.items():
         for key, value in s.items():
             if key in sizes and sizes[key] != value:
-                owner = next(a for a, d in named.items() if d.get(key) == sizes[key])
+                owner = next((a for a, d in named.items() if d.get(key) == sizes[key]), "another argument")
                 raise ValueError(
                     f"{what}: size {key} of {arg} is {value} but {key} of {owner} is {sizes[key]}; "
                     "they must agree"

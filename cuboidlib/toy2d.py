@@ -1,0 +1,763 @@
+"""A two-dimensional toy version of cuboid abstraction: oriented rectangles fitted to boundary points.
+
+Lesson 01 uses it to reproduce the ambiguity of the paper's Fig. 2 and the degenerate solutions of
+Fig. 9, and to show how the normal-aware point-to-primitive distance (Sec. 3.4.1, Eq. (5)), the soft
+point allocation (Eq. (3)-(4)) and the compactness loss (Eq. (6)) avoid them. Everything mirrors the
+3D conventions of cuboidlib with one dimension less:
+
+- rectangles: ``centers`` (B, K, 2), ``angles`` (B, K) in radians (counter-clockwise rotation of the
+  rectangle's local axes from the world axes) and ``half_sizes`` (B, K, 2), the half extents along
+  the local x and y axes. A point in the rectangle's frame is mapped to the world by
+  ``p = center + R(angle) @ p_local``;
+- points (B, N, 2) with unit outward normals (B, N, 2); distances have shape (B, N, K);
+- the allocation W has shape (B, N, K): softmax over the last axis (over rectangles).
+
+The four edges of a rectangle are numbered counter-clockwise by their outward normal in the local
+frame: 0 = +x, 1 = +y, 2 = -x, 3 = -y (see :data:`EDGE_NORMALS`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+from ._checks import (
+    as_float_tensor,
+    check_finite,
+    check_positive,
+    check_same_leading,
+    check_shape,
+    check_unit_vectors,
+)
+from .losses import allocation_portions, compactness_loss
+
+__all__ = [
+    "EDGE_NORMALS",
+    "Rectangles",
+    "rotation_2d",
+    "rectangle_corners",
+    "sample_rectangle_boundary",
+    "sample_union_boundary",
+    "boxes_to_rectangles",
+    "inside_rectangles",
+    "rectangle_shape",
+    "l_shape",
+    "t_shape",
+    "u_shape",
+    "stack_rectangles",
+    "nearest_edge_distance",
+    "best_matching_edge",
+    "normal_aware_distance",
+    "FitResult",
+    "fit_rectangles",
+    "used_rectangles",
+    "aspect_ratios",
+    "thin_fraction",
+    "union_iou",
+    "orientation_error",
+    "draw_abstraction",
+]
+
+#: Outward normals of the four edges in the rectangle's local frame, shape (4, 2).
+EDGE_NORMALS = torch.tensor([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+
+
+class Rectangles(NamedTuple):
+    """A batch of K oriented rectangles: centers (B, K, 2), angles (B, K), half_sizes (B, K, 2).
+
+    It is a tuple, so ``nearest_edge_distance(points, *rects)`` passes the three tensors.
+    """
+
+    centers: torch.Tensor
+    angles: torch.Tensor
+    half_sizes: torch.Tensor
+
+
+# --------------------------------------------------------------------------------------------------
+# Validation helpers (cheap; skipped with validate=False in the fitting loop)
+
+
+def _validate(centers, angles, half_sizes, points=None, normals=None, allow_zero: bool = True) -> tuple:
+    """Convert and check rectangles (and optionally points (B, N, 2) and unit normals (B, N, 2)).
+
+    Everything is converted to the dtype and device of ``centers``. Returns (centers, angles,
+    half_sizes, points, normals, sizes) where sizes maps "B", "K" (and "N") to their values.
+    """
+    centers = as_float_tensor(centers, "centers")
+    like = {"dtype": centers.dtype, "device": centers.device}
+    angles = as_float_tensor(angles, "angles", **like)
+    half_sizes = as_float_tensor(half_sizes, "half_sizes", **like)
+    named = {
+        "centers": check_shape(centers, ("B", "K", 2), "centers"),
+        "angles": check_shape(angles, ("B", "K"), "angles"),
+        "half_sizes": check_shape(half_sizes, ("B", "K", 2), "half_sizes"),
+    }
+    if points is not None:
+        points = as_float_tensor(points, "points", **like)
+        named["points"] = check_shape(points, ("B", "N", 2), "points")
+    if normals is not None:
+        normals = as_float_tensor(normals, "normals", **like)
+        named["normals"] = check_shape(normals, ("B", "N", 2), "normals")
+    sizes: dict = {}
+    check_same_leading(named, sizes, "rectangles, points and normals")
+    if sizes["K"] == 0:
+        raise ValueError("rectangles: K = 0; at least one rectangle is needed")
+    if sizes.get("N") == 0:
+        raise ValueError("points is empty (N = 0); at least one point is needed")
+    for t, name in ((centers, "centers"), (angles, "angles"), (half_sizes, "half_sizes"), (points, "points")):
+        if t is not None:
+            check_finite(t, name)
+    check_positive(half_sizes, "half_sizes", allow_zero=allow_zero)
+    if normals is not None:
+        check_finite(normals, "normals")
+        check_unit_vectors(normals, "normals")
+    return centers, angles, half_sizes, points, normals, sizes
+
+
+# --------------------------------------------------------------------------------------------------
+# Geometry
+
+
+def rotation_2d(angles: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices R(angle) = [[cos, -sin], [sin, cos]] for angles (...,) -> (..., 2, 2).
+
+    The columns of R are the rectangle's local x and y axes in world coordinates.
+    """
+    angles = as_float_tensor(angles, "angles")
+    c, s = torch.cos(angles), torch.sin(angles)
+    return torch.stack([torch.stack([c, -s], dim=-1), torch.stack([s, c], dim=-1)], dim=-2)
+
+
+def rectangle_corners(centers: torch.Tensor, angles: torch.Tensor, half_sizes: torch.Tensor) -> torch.Tensor:
+    """The four corners (B, K, 4, 2) of each rectangle, counter-clockwise.
+
+    Corner e is where edge e starts: local (+hx, -hy), (+hx, +hy), (-hx, +hy), (-hx, -hy).
+    """
+    centers, angles, half_sizes, _, _, _ = _validate(centers, angles, half_sizes)
+    signs = torch.tensor(
+        [[1.0, -1.0], [1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0]], dtype=centers.dtype, device=centers.device
+    )
+    local = signs * half_sizes[:, :, None, :]  # (B, K, 4, 2)
+    return centers[:, :, None, :] + torch.einsum("bkij,bkcj->bkci", rotation_2d(angles), local)
+
+
+def _local_xy(points: torch.Tensor, centers: torch.Tensor, angles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """World points (B, N, 2) -> their coordinates x, y (B, N, K) in each rectangle's frame, R^T (p - t)."""
+    dx = points[:, :, None, 0] - centers[:, None, :, 0]
+    dy = points[:, :, None, 1] - centers[:, None, :, 1]
+    c, s = torch.cos(angles)[:, None, :], torch.sin(angles)[:, None, :]
+    return c * dx + s * dy, c * dy - s * dx
+
+
+def _local_dir(vectors: torch.Tensor, angles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """World directions (B, N, 2) -> their components x, y (B, N, K) in each rectangle's frame, R^T v."""
+    c, s = torch.cos(angles)[:, None, :], torch.sin(angles)[:, None, :]
+    vx, vy = vectors[:, :, None, 0], vectors[:, :, None, 1]
+    return c * vx + s * vy, c * vy - s * vx
+
+
+def _boundary_at(half_sizes: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Local point and outward normal at arc length u in [0, perimeter) along the boundary.
+
+    half_sizes (..., 2), u (...). The walk starts at corner 0 and goes counter-clockwise.
+    """
+    hx, hy = half_sizes[..., 0], half_sizes[..., 1]
+    ends = torch.stack([2 * hy, 2 * hy + 2 * hx, 4 * hy + 2 * hx], dim=-1)  # where edges 0, 1, 2 end
+    edge = (u[..., None] >= ends).sum(dim=-1)  # (...,) in 0..3
+    starts = torch.cat([torch.zeros_like(ends[..., :1]), ends], dim=-1)
+    t = u - starts.gather(-1, edge[..., None]).squeeze(-1)
+    corner_x = torch.stack([hx, hx, -hx, -hx], dim=-1).gather(-1, edge[..., None]).squeeze(-1)
+    corner_y = torch.stack([-hy, hy, hy, -hy], dim=-1).gather(-1, edge[..., None]).squeeze(-1)
+    normals = EDGE_NORMALS.to(device=u.device, dtype=u.dtype)[edge]  # (..., 2)
+    # walking direction = outward normal rotated by +90 degrees: (-n_y, n_x)
+    x = corner_x - normals[..., 1] * t
+    y = corner_y + normals[..., 0] * t
+    return torch.stack([x, y], dim=-1), normals
+
+
+def _to_world(local: torch.Tensor, centers: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+    """Local coordinates (..., 2) with matching centers (..., 2) and angles (...) -> world (..., 2)."""
+    c, s = torch.cos(angles), torch.sin(angles)
+    x, y = local[..., 0], local[..., 1]
+    return torch.stack([c * x - s * y, s * x + c * y], dim=-1) + centers
+
+
+def sample_rectangle_boundary(
+    centers: torch.Tensor,
+    angles: torch.Tensor,
+    half_sizes: torch.Tensor,
+    n: int,
+    generator: torch.Generator | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sample n points uniformly by length on the boundary of each rectangle, with outward normals.
+
+    centers (B, K, 2), angles (B, K), half_sizes (B, K, 2) -> points (B, K, n, 2), normals (B, K, n, 2).
+    """
+    centers, angles, half_sizes, _, _, sizes = _validate(centers, angles, half_sizes, allow_zero=False)
+    if not isinstance(n, int) or n < 1:
+        raise ValueError(f"n must be a positive integer (points per rectangle), got {n!r}")
+    B, K = sizes["B"], sizes["K"]
+    perimeter = 4 * half_sizes.sum(dim=-1)  # (B, K)
+    u = torch.rand(B, K, n, generator=generator, dtype=centers.dtype, device=centers.device) * perimeter[..., None]
+    local, local_normals = _boundary_at(half_sizes[:, :, None, :].expand(B, K, n, 2), u)
+    points = _to_world(local, centers[:, :, None, :], angles[:, :, None])
+    normals = _to_world(local_normals, torch.zeros_like(centers[:, :, None, :]), angles[:, :, None])
+    return points, normals
+
+
+def _inside(
+    points: torch.Tensor, centers: torch.Tensor, angles: torch.Tensor, half_sizes: torch.Tensor
+) -> torch.Tensor:
+    x, y = _local_xy(points, centers, angles)
+    return (x.abs() <= half_sizes[:, None, :, 0]) & (y.abs() <= half_sizes[:, None, :, 1])
+
+
+def inside_rectangles(
+    points: torch.Tensor, centers: torch.Tensor, angles: torch.Tensor, half_sizes: torch.Tensor
+) -> torch.Tensor:
+    """Closed point-in-rectangle test: points (B, N, 2), rectangles (B, K, ...) -> (B, N, K) bool."""
+    centers, angles, half_sizes, points, _, _ = _validate(centers, angles, half_sizes, points)
+    return _inside(points, centers, angles, half_sizes)
+
+
+def sample_union_boundary(
+    centers: torch.Tensor,
+    angles: torch.Tensor,
+    half_sizes: torch.Tensor,
+    n: int,
+    generator: torch.Generator | None = None,
+    step: float = 1e-4,
+    max_rounds: int = 100,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Sample n points uniformly by length on the OUTER boundary of the union of K rectangles.
+
+    centers (B, K, 2), angles (B, K), half_sizes (B, K, 2) -> points (B, n, 2), unit outward normals
+    (B, n, 2) and labels (B, n) (long), the index of the rectangle whose edge each point lies on.
+
+    Candidates are drawn uniformly by length over all edges (rejection sampling, repeated until n
+    points are kept). A candidate p on an edge of rectangle k with outward normal n is kept when the
+    point p + step * diameter * n, just outside rectangle k, lies outside every other rectangle:
+    edge pieces inside another rectangle, or glued to another rectangle's edge, are interior to the
+    union. Where two rectangles share a collinear edge piece with the same normal, only the first
+    rectangle's copy is kept (p - step * diameter * n must not lie in an earlier rectangle), so the
+    density stays uniform. ``step`` is relative to the largest rectangle diagonal.
+    """
+    centers, angles, half_sizes, _, _, sizes = _validate(centers, angles, half_sizes, allow_zero=False)
+    if not isinstance(n, int) or n < 1:
+        raise ValueError(f"n must be a positive integer (number of points), got {n!r}")
+    if not 0 < step < 0.01:
+        raise ValueError(f"step must be in (0, 0.01) (a small fraction of the shape size), got {step}")
+    B, K = sizes["B"], sizes["K"]
+    dtype, device = centers.dtype, centers.device
+    perimeter = 4 * half_sizes.sum(dim=-1)  # (B, K)
+    cumulative = perimeter.cumsum(dim=-1)  # (B, K)
+    delta = step * 2 * half_sizes.norm(dim=-1).amax(dim=-1)  # (B,)
+    earlier = torch.ones(K, K, dtype=torch.bool, device=device).tril(-1)  # earlier[k, j]: j < k
+    other = ~torch.eye(K, dtype=torch.bool, device=device)
+    kept: list[list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]] = [[] for _ in range(B)]
+    counts = [0] * B
+    m = 2 * n
+    for _ in range(max_rounds):
+        u = torch.rand(B, m, generator=generator, dtype=dtype, device=device) * cumulative[:, -1:]
+        label = torch.searchsorted(cumulative.contiguous(), u, right=True).clamp_max(K - 1)  # (B, m)
+        u_local = u - (cumulative - perimeter).gather(1, label)
+        h = half_sizes.gather(1, label[..., None].expand(B, m, 2))
+        local, local_normals = _boundary_at(h, u_local)
+        a = angles.gather(1, label)
+        points = _to_world(local, centers.gather(1, label[..., None].expand(B, m, 2)), a)
+        normals = _to_world(local_normals, torch.zeros_like(points), a)
+        outside = points + delta[:, None, None] * normals
+        inner = points - delta[:, None, None] * normals
+        covered = (_inside(outside, centers, angles, half_sizes) & other[label]).any(dim=-1)
+        duplicate = (_inside(inner, centers, angles, half_sizes) & earlier[label]).any(dim=-1)
+        keep = ~(covered | duplicate)  # (B, m)
+        for b in range(B):
+            if counts[b] < n:
+                sel = keep[b]
+                kept[b].append((points[b, sel], normals[b, sel], label[b, sel]))
+                counts[b] += int(sel.sum())
+        if min(counts) >= n:
+            break
+    else:
+        raise ValueError(
+            f"sample_union_boundary: could not collect n = {n} boundary points in {max_rounds} rounds "
+            f"(kept {min(counts)}); is the union boundary degenerate?"
+        )
+    out = [tuple(torch.cat([c[i] for c in kept[b]])[:n] for i in range(3)) for b in range(B)]
+    return tuple(torch.stack([o[i] for o in out]) for i in range(3))  # type: ignore[return-value]
+
+
+def boxes_to_rectangles(boxes: list[tuple[float, float, float, float]], dtype: torch.dtype | None = None) -> Rectangles:
+    """Axis-aligned rectangles given as K boxes (xmin, xmax, ymin, ymax) -> Rectangles with B = 1."""
+    t = as_float_tensor(boxes, "boxes", dtype=dtype)
+    if t.dim() != 2 or t.shape[1] != 4 or t.shape[0] == 0:
+        raise ValueError(f"boxes must be a non-empty list of (xmin, xmax, ymin, ymax), got shape {tuple(t.shape)}")
+    if not bool((t[:, 1] > t[:, 0]).all() and (t[:, 3] > t[:, 2]).all()):
+        raise ValueError("boxes must have xmin < xmax and ymin < ymax")
+    centers = torch.stack([(t[:, 0] + t[:, 1]) / 2, (t[:, 2] + t[:, 3]) / 2], dim=-1)[None]
+    half_sizes = torch.stack([(t[:, 1] - t[:, 0]) / 2, (t[:, 3] - t[:, 2]) / 2], dim=-1)[None]
+    return Rectangles(centers, torch.zeros(1, len(boxes), dtype=t.dtype), half_sizes)
+
+
+def rectangle_shape(dtype: torch.dtype | None = None) -> Rectangles:
+    """One part, the paper's Fig. 2 example: the rectangle [-1, 1] x [-0.6, 0.6] (B = 1, K = 1)."""
+    return boxes_to_rectangles([(-1.0, 1.0, -0.6, 0.6)], dtype)
+
+
+def l_shape(dtype: torch.dtype | None = None) -> Rectangles:
+    """An L in [-1, 1]^2 of two parts 1 thick: a 1 x 2 upright and a 1 x 1 foot to its right (B = 1, K = 2)."""
+    return boxes_to_rectangles([(-1.0, 0.0, -1.0, 1.0), (0.0, 1.0, -1.0, 0.0)], dtype)
+
+
+def t_shape(dtype: torch.dtype | None = None) -> Rectangles:
+    """A T in [-1, 1]^2 of two parts 0.8 thick: a 2 x 0.8 top bar and a 0.8 x 1.2 stem (B = 1, K = 2)."""
+    return boxes_to_rectangles([(-1.0, 1.0, 0.2, 1.0), (-0.4, 0.4, -1.0, 0.2)], dtype)
+
+
+def u_shape(dtype: torch.dtype | None = None) -> Rectangles:
+    """A U in [-1, 1]^2 of three parts: two 0.6 x 2 uprights and a 0.8 x 0.7 base between them (B = 1, K = 3)."""
+    return boxes_to_rectangles([(-1.0, -0.4, -1.0, 1.0), (0.4, 1.0, -1.0, 1.0), (-0.4, 0.4, -1.0, -0.3)], dtype)
+
+
+def stack_rectangles(shapes: list[tuple]) -> tuple[Rectangles, torch.Tensor]:
+    """Stack shapes with different numbers of parts into one batch.
+
+    shapes: a list of (centers (1, K_i, 2), angles (1, K_i), half_sizes (1, K_i, 2)) tuples, e.g.
+    the presets. Returns Rectangles (S, K_max, ...) padded with zero-size rectangles and a bool mask
+    present (S, K_max) of the real ones (pass it as ``used`` to :func:`union_iou`).
+    """
+    if len(shapes) == 0:
+        raise ValueError("shapes is empty; at least one shape is needed")
+    checked = [_validate(*shape) for shape in shapes]
+    for i, c in enumerate(checked):
+        if c[5]["B"] != 1:
+            raise ValueError(f"shapes[{i}] must hold one shape (B = 1), got B = {c[5]['B']}")
+    k_max = max(c[5]["K"] for c in checked)
+    out = []
+    for j, pad_shape in enumerate(((2,), (), (2,))):
+        parts = []
+        for c in checked:
+            t = c[j]
+            pad = torch.zeros(1, k_max - t.shape[1], *pad_shape, dtype=t.dtype, device=t.device)
+            parts.append(torch.cat([t, pad], dim=1))
+        out.append(torch.cat(parts))
+    present = torch.stack([torch.arange(k_max, device=out[0].device) < c[5]["K"] for c in checked])
+    return Rectangles(*out), present
+
+
+# --------------------------------------------------------------------------------------------------
+# Point-to-rectangle distances (the 2D version of d(p, C) in Sec. 3.4.1)
+
+
+def nearest_edge_distance(
+    points: torch.Tensor,
+    centers: torch.Tensor,
+    angles: torch.Tensor,
+    half_sizes: torch.Tensor,
+    validate: bool = True,
+) -> torch.Tensor:
+    """Squared distance from each point to the NEAREST edge segment of each rectangle: (B, N, K).
+
+    points (B, N, 2); rectangles centers (B, K, 2), angles (B, K), half_sizes (B, K, 2).
+    This is the "closest cuboid plane" distance the paper argues against (Sec. 3.4.1 and Fig. 9):
+    it ignores normals, so it is zero for a point lying on any edge, whichever side the shape is on.
+    In the rectangle's frame, with q = |p_local| - h: outside the rectangle it is
+    |max(q, 0)|^2 (the squared distance to the rectangle), inside it is max(q_x, q_y)^2 (the
+    squared distance to the nearest edge line, whose foot is always on the segment); the two cases
+    are one expression: relu(q_x)^2 + relu(q_y)^2 + relu(-max(q_x, q_y))^2.
+    """
+    if validate:
+        centers, angles, half_sizes, points, _, _ = _validate(centers, angles, half_sizes, points)
+    x, y = _local_xy(points, centers, angles)
+    qx = x.abs() - half_sizes[:, None, :, 0]
+    qy = y.abs() - half_sizes[:, None, :, 1]
+    # outside only the positive parts count; inside (both q < 0) only the larger q does
+    q_max = torch.where(qx > qy, qx, qy)
+    return torch.relu(qx).square() + torch.relu(qy).square() + torch.relu(-q_max).square()
+
+
+def _matching_edge(nx: torch.Tensor, ny: torch.Tensor) -> torch.Tensor:
+    """argmax over edges of the cosine (nx, ny, -nx, -ny) with the local normal, first edge on ties."""
+    m = torch.maximum(nx.abs(), ny.abs())
+    three = torch.full_like(nx, 3, dtype=torch.long)
+    return torch.where(nx == m, 0, torch.where(ny == m, 1, torch.where(-nx == m, 2, three)))
+
+
+def best_matching_edge(normals: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+    """Index (B, N, K) of the edge of each rectangle whose outward normal is most similar to the point normal.
+
+    normals (B, N, 2) unit; angles (B, K). The cosine between a point normal n and the outward normal
+    of edge e is EDGE_NORMALS[e] . (R^T n); the edge with the largest cosine wins (the first one on
+    ties). The choice is discrete: no gradient flows through it (as in Sec. 3.4.1).
+    """
+    normals = as_float_tensor(normals, "normals")
+    angles = as_float_tensor(angles, "angles", dtype=normals.dtype, device=normals.device)
+    sizes: dict = {}
+    check_same_leading(
+        {
+            "normals": check_shape(normals, ("B", "N", 2), "normals"),
+            "angles": check_shape(angles, ("B", "K"), "angles"),
+        },
+        sizes,
+        "normals and angles",
+    )
+    check_finite(normals, "normals")
+    check_unit_vectors(normals, "normals")
+    check_finite(angles, "angles")
+    return _matching_edge(*_local_dir(normals.detach(), angles.detach()))
+
+
+def normal_aware_distance(
+    points: torch.Tensor,
+    normals: torch.Tensor,
+    centers: torch.Tensor,
+    angles: torch.Tensor,
+    half_sizes: torch.Tensor,
+    sigma_s: float = 0.05,
+    offsets: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+    validate: bool = True,
+) -> torch.Tensor:
+    """The paper's point-to-primitive distance d(p, C) = |q - p|^2, Eq. (5), for rectangles: (B, N, K).
+
+    points, normals (B, N, 2); rectangles centers (B, K, 2), angles (B, K), half_sizes (B, K, 2).
+    For every point p with unit normal n and every rectangle:
+    1. the edge is the one whose outward normal is most similar to n (:func:`best_matching_edge`,
+       no gradient through the choice);
+    2. a sampled point p^s = p + e * n is taken along the normal, e ~ N(0, sigma_s^2), one e per point
+       shared by all rectangles. ``offsets`` (B, N) gives the e values (to reproduce a draw exactly;
+       sigma_s is then not used); otherwise they are drawn with ``generator``. sigma_s = 0 is the
+       unsampled variant;
+    3. q is the point of that edge SEGMENT nearest to p^s (clamped to the segment, not the line);
+    4. d = |q - p|^2 is measured to the ORIGINAL point p.
+    For p on an edge whose normal is tilted by theta from n (theta < 45 degrees), E[d] =
+    sigma_s^2 sin^2(theta): the sampling adds a soft normal-alignment penalty. d = 0 only when p lies
+    on an edge with the same outward normal.
+    """
+    if validate:
+        centers, angles, half_sizes, points, normals, _ = _validate(centers, angles, half_sizes, points, normals)
+        if not (math.isfinite(sigma_s) and sigma_s >= 0):
+            raise ValueError(f"sigma_s must be a finite non-negative number, got {sigma_s}")
+    B, N = points.shape[:2]
+    if offsets is not None:
+        if validate:
+            offsets = as_float_tensor(offsets, "offsets", dtype=points.dtype, device=points.device)
+            check_shape(offsets, (B, N), "offsets")
+            check_finite(offsets, "offsets")
+    elif sigma_s > 0:
+        offsets = sigma_s * torch.randn(B, N, generator=generator, dtype=points.dtype, device=points.device)
+    x, y = _local_xy(points, centers, angles)  # the original point p
+    nx, ny = _local_dir(normals, angles)
+    if offsets is None:
+        sx, sy = x, y
+    else:  # the sampled point p^s = p + e n, in each rectangle's frame
+        sx, sy = x + offsets[:, :, None] * nx, y + offsets[:, :, None] * ny
+    with torch.no_grad():  # the edge choice of _matching_edge, as two masks
+        m = torch.maximum(nx.abs(), ny.abs())
+        plus_x, plus_y = nx == m, ny == m
+        on_x = (plus_x | (~plus_y & (-nx == m))).to(x.dtype)  # 1 for edges 0 and 2 (x = +-hx)
+        sign = 2 * (plus_x | plus_y).to(x.dtype) - 1  # +1 for edges 0 and 1, -1 for edges 2 and 3
+    hx, hy = half_sizes[:, None, :, 0], half_sizes[:, None, :, 1]
+    # q lies on the edge line (x = sign * hx, say) and, along the edge, at p^s clamped to the segment
+    d_x_edge = (sign * hx - x).square() + (torch.clamp(sy, min=-hy, max=hy) - y).square()
+    d_y_edge = (sign * hy - y).square() + (torch.clamp(sx, min=-hx, max=hx) - x).square()
+    return on_x * d_x_edge + (1 - on_x) * d_y_edge
+
+
+# --------------------------------------------------------------------------------------------------
+# Fitting K rectangles to one point set per batch element
+
+
+class FitResult(NamedTuple):
+    """Output of :func:`fit_rectangles`.
+
+    centers (B, K, 2), angles (B, K), half_sizes (B, K, 2): the fitted rectangles (detached);
+    W (B, N, K): the final allocation (the softmax of the logits for "soft"; for "min", one-hot of the
+    rectangle with the smallest unsampled distance);
+    portions (B, K): w_k = mean_n W_nk; history (steps, B): the objective at every step.
+    """
+
+    centers: torch.Tensor
+    angles: torch.Tensor
+    half_sizes: torch.Tensor
+    W: torch.Tensor
+    portions: torch.Tensor
+    history: torch.Tensor
+
+    @property
+    def rectangles(self) -> Rectangles:
+        """The fitted rectangles as one (centers, angles, half_sizes) tuple."""
+        return Rectangles(self.centers, self.angles, self.half_sizes)
+
+
+def fit_rectangles(
+    points: torch.Tensor,
+    normals: torch.Tensor | None,
+    K: int,
+    distance: str = "normal",
+    assignment: str = "soft",
+    compactness_weight: float = 0.03,
+    sigma_s: float = 0.05,
+    steps: int = 400,
+    lr: float = 0.05,
+    logit_lr: float = 0.03,
+    bias_lr: float = 0.1,
+    init_size: tuple[float, float] = (0.1, 0.4),
+    seed: int = 0,
+) -> FitResult:
+    """Fit K rectangles to each point set of the batch by gradient descent (Adam) from random starts.
+
+    points (B, N, 2); normals (B, N, 2) unit (may be None for distance="nearest").
+    distance: "normal" (:func:`normal_aware_distance`, the paper's Eq. (5), with a fresh offset per
+    point at every step when sigma_s > 0) or "nearest" (:func:`nearest_edge_distance`).
+    assignment:
+    - "min": objective = mean_n min_k d(p_n, R_k): every point is served by its closest rectangle
+      (the hard assignment of the paper's P2C-Dis baseline, Sec. 4.3); no compactness term;
+    - "soft": objective = mean_n sum_k W_nk d(p_n, R_k) + compactness_weight * L_compact(w), the
+      paper's Eq. (4) + lambda_1 Eq. (6), with W = softmax over rectangles of free logits
+      a_nk + b_k: a free logit per point and rectangle plus a free logit per rectangle shared by
+      its points. Any W can be written this way; the shared b_k lets a whole group of points move
+      to another rectangle at once (the role of the network's per-cuboid feature in the paper).
+      a starts at -d_nk / mean(d) for the starting rectangles (unsampled distance), b at 0.
+    Random start, drawn from ``seed`` and identical for every distance/assignment: centers uniform
+    in the bounding box of the points, angles uniform in [0, pi/2), half sizes uniform in
+    init_size (fractions of the larger half extent of the bounding box). Half sizes are exp(free
+    parameter), so they stay positive. Adam learning rates: ``lr`` (rectangles), ``logit_lr`` (a),
+    ``bias_lr`` (b), all decayed to 0 with a cosine schedule. The batch elements are independent
+    fits (the objective is summed over the batch), so several random starts of one shape can be
+    run at once by repeating its points along the batch axis.
+    Defaults: compactness_weight = 0.03 suits shapes about 2 units across (distances scale with
+    the size squared, the compactness term does not); sigma_s = 0.05 as in the paper.
+    """
+    if distance not in ("nearest", "normal"):
+        raise ValueError(f'distance must be "nearest" or "normal", got {distance!r}')
+    if assignment not in ("min", "soft"):
+        raise ValueError(f'assignment must be "min" or "soft", got {assignment!r}')
+    if distance == "normal" and normals is None:
+        raise ValueError('normals (B, N, 2) are required for distance="normal"')
+    points = as_float_tensor(points, "points")
+    named = {"points": check_shape(points, ("B", "N", 2), "points")}
+    if normals is not None:
+        normals = as_float_tensor(normals, "normals", dtype=points.dtype, device=points.device)
+        named["normals"] = check_shape(normals, ("B", "N", 2), "normals")
+    sizes: dict = {}
+    check_same_leading(named, sizes, "points and normals")
+    if sizes["N"] == 0:
+        raise ValueError("points is empty (N = 0); at least one point is needed")
+    check_finite(points, "points")
+    if normals is not None:
+        check_finite(normals, "normals")
+        check_unit_vectors(normals, "normals")
+    if not isinstance(K, int) or K < 1:
+        raise ValueError(f"K must be a positive integer (number of rectangles), got {K!r}")
+    if not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    non_negative = {
+        "compactness_weight": compactness_weight, "sigma_s": sigma_s, "lr": lr, "logit_lr": logit_lr, "bias_lr": bias_lr
+    }
+    for name, value in non_negative.items():
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a finite non-negative number, got {value}")
+    low, high = init_size
+    if not 0 < low <= high:
+        raise ValueError(f"init_size must be (low, high) with 0 < low <= high, got {init_size}")
+    B, N = sizes["B"], sizes["N"]
+    dtype, device = points.dtype, points.device
+    gen = torch.Generator(device=device).manual_seed(seed)
+
+    lo, hi = points.amin(dim=1), points.amax(dim=1)  # (B, 2)
+    scale = ((hi - lo) / 2).amax(dim=-1).clamp_min(1e-6)  # (B,)
+    centers = lo[:, None, :] + (hi - lo)[:, None, :] * torch.rand(B, K, 2, generator=gen, dtype=dtype, device=device)
+    angles = torch.rand(B, K, generator=gen, dtype=dtype, device=device) * (math.pi / 2)
+    sizes0 = low + (high - low) * torch.rand(B, K, 2, generator=gen, dtype=dtype, device=device)
+    log_half = torch.log(sizes0 * scale[:, None, None])
+    params = [centers.requires_grad_(), angles.requires_grad_(), log_half.requires_grad_()]
+
+    def distances(sampled: bool = True) -> torch.Tensor:
+        half = log_half.exp()
+        if distance == "nearest":
+            return nearest_edge_distance(points, centers, angles, half, validate=False)
+        return normal_aware_distance(
+            points, normals, centers, angles, half, sigma_s=sigma_s if sampled else 0.0, generator=gen, validate=False
+        )
+
+    groups = [{"params": params, "lr": lr}]
+    if assignment == "soft":
+        # logits are stored as (B, K, N): a softmax over a middle axis is much faster on CPU than
+        # over a short last axis; W is the (B, N, K) view of the result
+        with torch.no_grad():
+            d0 = distances(sampled=False).transpose(1, 2)
+            logits = (-d0 / d0.mean(dim=(1, 2), keepdim=True).clamp_min(1e-12)).contiguous()
+        bias = torch.zeros(B, K, 1, dtype=dtype, device=device)
+        groups.append({"params": [logits.requires_grad_()], "lr": logit_lr})
+        groups.append({"params": [bias.requires_grad_()], "lr": bias_lr})
+    optimizer = torch.optim.Adam(groups)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda i: 0.5 * (1 + math.cos(math.pi * i / steps)))
+
+    history = torch.empty(steps, B, dtype=dtype)
+    for i in range(steps):
+        d = distances()
+        if assignment == "min":
+            objective = d.min(dim=-1).values.mean(dim=1)
+        else:
+            W = torch.softmax(logits + bias, dim=1).transpose(1, 2)
+            objective = (W * d).sum(dim=-1).mean(dim=1)
+            if compactness_weight > 0:
+                objective = objective + compactness_weight * compactness_loss(allocation_portions(W))
+        optimizer.zero_grad(set_to_none=True)
+        objective.sum().backward()
+        optimizer.step()
+        schedule.step()
+        history[i] = objective.detach().cpu()
+
+    with torch.no_grad():
+        if assignment == "min":
+            W = torch.nn.functional.one_hot(distances(sampled=False).argmin(dim=-1), K).to(dtype)
+        else:
+            W = torch.softmax(logits + bias, dim=1).transpose(1, 2).contiguous()
+        return FitResult(
+            centers.detach(), angles.detach(), log_half.detach().exp(), W, allocation_portions(W), history
+        )
+
+
+# --------------------------------------------------------------------------------------------------
+# Measures of degeneracy and of recovery
+
+
+def used_rectangles(portions: torch.Tensor, eps_ext: float = 0.05) -> torch.Tensor:
+    """Rectangles that get more than eps_ext of the points: portions (B, K) -> bool (B, K).
+
+    The same rule as the paper's existence target delta_m^gt = [w_m > eps_ext] (Sec. 3.4.3).
+    """
+    portions = as_float_tensor(portions, "portions")
+    check_shape(portions, ("B", "K"), "portions")
+    return portions > eps_ext
+
+
+def aspect_ratios(half_sizes: torch.Tensor) -> torch.Tensor:
+    """Long side over short side of each rectangle: half_sizes (B, K, 2) -> (B, K), >= 1."""
+    half_sizes = as_float_tensor(half_sizes, "half_sizes")
+    check_shape(half_sizes, ("B", "K", 2), "half_sizes")
+    check_positive(half_sizes, "half_sizes")
+    return half_sizes.amax(dim=-1) / half_sizes.amin(dim=-1)
+
+
+def thin_fraction(half_sizes: torch.Tensor, used: torch.Tensor, min_thickness) -> torch.Tensor:
+    """Fraction (B,) of the used rectangles whose short side 2 * min(half_sizes) is below min_thickness.
+
+    half_sizes (B, K, 2); used (B, K) bool; min_thickness: a number or a tensor (B,) (one threshold per
+    batch element, e.g. a fraction of the thinnest true part). A batch element with no used
+    rectangle gets 0.
+    """
+    half_sizes = as_float_tensor(half_sizes, "half_sizes")
+    check_shape(half_sizes, ("B", "K", 2), "half_sizes")
+    used = torch.as_tensor(used, dtype=torch.bool, device=half_sizes.device)
+    check_shape(used, tuple(half_sizes.shape[:2]), "used")
+    limit = as_float_tensor(min_thickness, "min_thickness", dtype=half_sizes.dtype, device=half_sizes.device)
+    if limit.dim() == 1:
+        check_shape(limit, (half_sizes.shape[0],), "min_thickness")
+        limit = limit[:, None]
+    elif limit.dim() != 0:
+        raise ValueError(f"min_thickness must be a number or have shape (B,), got shape {tuple(limit.shape)}")
+    thin = (2 * half_sizes.amin(dim=-1) < limit) & used
+    return thin.sum(dim=-1).to(half_sizes.dtype) / used.sum(dim=-1).clamp_min(1).to(half_sizes.dtype)
+
+
+def union_iou(
+    rects_a: tuple,
+    rects_b: tuple,
+    used_a: torch.Tensor | None = None,
+    used_b: torch.Tensor | None = None,
+    resolution: int = 200,
+    extent: float = 1.5,
+) -> torch.Tensor:
+    """Area IoU (B,) of the union of rectangles A with the union of rectangles B, on a pixel grid.
+
+    rects_a, rects_b: (centers, angles, half_sizes) tuples with the same batch size (K may differ);
+    used_a (B, K_a), used_b (B, K_b): optional bool masks of the rectangles to include. The grid has
+    resolution x resolution cell centres covering [-extent, extent]^2 (the preset shapes lie in
+    [-1, 1]^2). This measures the abstraction as a VOLUME, which boundary distances cannot see: thin
+    rectangles hugging the edges have almost no area.
+    """
+    ca, aa, ha, _, _, sa = _validate(*rects_a)
+    cb, ab, hb, _, _, sb = _validate(*rects_b)
+    if sa["B"] != sb["B"]:
+        raise ValueError(f"rects_a and rects_b must have the same batch size, got {sa['B']} and {sb['B']}")
+    B = sa["B"]
+    axis = (torch.arange(resolution, dtype=ca.dtype, device=ca.device) + 0.5) / resolution * 2 * extent - extent
+    gy, gx = torch.meshgrid(axis, axis, indexing="ij")
+    grid = torch.stack([gx, gy], dim=-1).reshape(1, -1, 2).expand(B, -1, 2)
+
+    def occupancy(c, a, h, used):
+        inside = _inside(grid, c, a, h)  # (B, G, K)
+        if used is not None:
+            inside = inside & torch.as_tensor(used, dtype=torch.bool, device=c.device)[:, None, :]
+        return inside.any(dim=-1)
+
+    oa, ob = occupancy(ca, aa, ha, used_a), occupancy(cb, ab, hb, used_b)
+    union = (oa | ob).sum(dim=-1)
+    return (oa & ob).sum(dim=-1).to(ca.dtype) / union.clamp_min(1).to(ca.dtype)
+
+
+def orientation_error(angles: torch.Tensor, used: torch.Tensor, reference: float = 0.0) -> torch.Tensor:
+    """Mean (B,) over used rectangles of the angle, in radians, between a rectangle and the reference axes.
+
+    angles (B, K); used (B, K) bool. A rectangle is the same after a quarter turn (with its sizes
+    swapped), so the error is the distance of angle - reference to the nearest multiple of pi/2,
+    in [0, pi/4]. A batch element with no used rectangle gets 0.
+    """
+    angles = as_float_tensor(angles, "angles")
+    check_shape(angles, ("B", "K"), "angles")
+    used = torch.as_tensor(used, dtype=torch.bool, device=angles.device)
+    check_shape(used, tuple(angles.shape), "used")
+    quarter = math.pi / 2
+    r = torch.remainder(angles - reference, quarter)
+    err = torch.minimum(r, quarter - r) * used
+    return err.sum(dim=-1) / used.sum(dim=-1).clamp_min(1).to(angles.dtype)
+
+
+def draw_abstraction(
+    ax,
+    points: torch.Tensor | None = None,
+    normals: torch.Tensor | None = None,
+    rectangles: tuple | None = None,
+    used: torch.Tensor | None = None,
+    labels: torch.Tensor | None = None,
+    normal_length: float = 0.12,
+    title: str | None = None,
+) -> None:
+    """Draw ONE shape on a matplotlib Axes: points (N, 2), their normals (N, 2) as short arrows, and
+    rectangles (centers (K, 2), angles (K,), half_sizes (K, 2)) as outlines.
+
+    Unused rectangles (used (K,) False) are drawn dotted and grey; labels (N,) colour the points.
+    """
+    import matplotlib.pyplot as plt  # imported here so that cuboidlib.toy2d does not need a display
+
+    if points is not None:
+        p = as_float_tensor(points, "points").detach().cpu()
+        check_shape(p, ("N", 2), "points")
+        colors = None if labels is None else [plt.cm.tab10(int(i) % 10) for i in labels]
+        ax.scatter(p[:, 0], p[:, 1], s=5, c=colors if colors is not None else "k", zorder=3)
+        if normals is not None:
+            nrm = as_float_tensor(normals, "normals").detach().cpu()
+            check_shape(nrm, (p.shape[0], 2), "normals")
+            ax.quiver(
+                p[:, 0], p[:, 1], nrm[:, 0] * normal_length, nrm[:, 1] * normal_length,
+                angles="xy", scale_units="xy", scale=1, width=0.003, color="tab:gray", zorder=2,
+            )
+    if rectangles is not None:
+        names = ("centers", "angles", "half_sizes")
+        c, a, h = (as_float_tensor(t, name).detach().cpu() for t, name in zip(rectangles, names))
+        corners = rectangle_corners(c[None], a[None], h[None])[0]  # (K, 4, 2)
+        mask = torch.ones(c.shape[0], dtype=torch.bool) if used is None else torch.as_tensor(used).cpu()
+        for k in range(corners.shape[0]):
+            loop = torch.cat([corners[k], corners[k, :1]])
+            if mask[k]:
+                ax.plot(loop[:, 0], loop[:, 1], "-", color=plt.cm.tab10(k % 10), lw=1.8, zorder=4)
+            else:
+                ax.plot(loop[:, 0], loop[:, 1], ":", color="0.6", lw=1.0, zorder=1)
+    ax.set_aspect("equal")
+    if title:
+        ax.set_title(title, fontsize=9)
