@@ -318,7 +318,7 @@ class LossTerms:
 
     def as_floats(self) -> dict[str, float]:
         """The five scalar terms as plain floats (for logs and progress bars)."""
-        return {k: float(getattr(self, k)) for k in ("total", "reconstruction", "compactness", "existence", "kl")}
+        return {k: getattr(self, k).detach().item() for k in ("total", "reconstruction", "compactness", "existence", "kl")}
 
 
 def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: LossConfig = LossConfig(),

@@ -1,0 +1,468 @@
+"""Per-shape fitting: M cuboids fitted to ONE point cloud by gradient descent on the paper's losses.
+
+The paper trains a network that predicts the cuboids and the point-to-cuboid allocation W for every
+shape (Sec. 3). Here there is no network: the cuboid parameters and W of each shape are free
+variables, optimised directly with Adam on the same losses. This is the fastest way to see what the
+losses do to a single shape (lesson 03) and the engine of the command-line tool for a user's own
+point cloud.
+
+Free variables (for every shape b of a batch of B shapes, each fitted independently):
+
+- centres t (B, M, 3), free;
+- quaternions r (B, M, 4) = q / |q| from free 4-vectors q (initialised to the identity (1, 0, 0, 0),
+  like the bias of the paper's rotation head, Sec. 3.4.5);
+- half sizes s (B, M, 3) = exp(log s), always positive;
+- the allocation W (B, N, M) = softmax over the cuboids of free per-point logits (the paper's Eq. 3
+  without the network that predicts the logits).
+
+Loss per shape, minimised by Adam (the terms of Eq. 9 that make sense without a network):
+
+    L = L_recons + lambda_compact * L_compact
+
+- L_recons (Eq. 4) = (1/N) sum_n sum_m W_mn d(p_n, C_m), with d the normal-aware distance of Eq. (5)
+  (``distance="normal"``, new offsets along the normals at every step) or the nearest-surface
+  distance that ignores normals (``distance="nearest_surface"``, the ablation of Sec. 4.3);
+  ``allocation="nearest"`` replaces the free W by the hard nearest-cuboid allocation (P2C-Dis);
+- L_compact (Eq. 6) = (sum_m sqrt(w_m + eps_sps))^2 with w_m = (1/N) sum_n W_mn, by default in the
+  averaged form of the authors' code, (mean_m sqrt(w_m + eps_sps))^2 (see below).
+
+There is no existence head and no latent code, so L_exist and L_KL have nothing to train. The
+existence mask is read out from W at the end, exactly as the paper builds the existence targets
+(Sec. 3.4.3): cuboid m exists when w_m > eps_ext (and the cuboid with the largest w_m always exists).
+So a part holding fewer than eps_ext = 5 % of the points cannot be kept as a cuboid of its own.
+
+On the weight of the compactness loss: Eq. (6) sums over the cuboids, so L_compact is of order 1 to
+M, while L_recons is a mean SQUARED distance of order 1e-4 to 1e-2 for a shape of unit diagonal. With
+the paper's lambda_1 = 0.1 on Eq. (6) the compactness term dominates and a per-shape fit merges every
+part into one or two cuboids. The authors' public code averages over the cuboids instead, which is
+Eq. (6) divided by M^2 (see :func:`cuboidlib.losses.compactness_loss`). :class:`FitConfig` therefore
+keeps lambda_1 = 0.1 but uses the averaged form by default (``compactness_average=True``, i.e. an
+effective weight 0.1 / M^2 on Eq. 6); ``compactness_average=False`` gives the paper's literal form.
+
+The losses are not convex: a fit can stop in a local minimum (for example one cuboid spanning two
+legs of a table). A larger M (the default 16, one of the values of the paper's Table 7) gives k-means
+smaller clusters to start from, and ``restarts`` keeps the best of several initialisations.
+
+By default every shape is first normalised (bounding box centred at the origin, diagonal 1, see
+:mod:`cuboidlib.normalization`) so that the learning rates and sigma_s mean the same for every input;
+the fitted cuboids are mapped back to the input's coordinates.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
+from .distance import nearest_surface_distance, point_to_cuboid_distance
+from .geometry import Cuboids, standardize_quaternion
+from .losses import (
+    allocation_portions,
+    compactness_loss,
+    existence_targets,
+    nearest_cuboid_allocation,
+    reconstruction_loss,
+)
+from .normalization import normalize
+
+__all__ = ["FitConfig", "FitResult", "kmeans", "initial_cuboids", "fit_cuboids"]
+
+DISTANCES = ("normal", "nearest_surface")
+ALLOCATIONS = ("soft", "nearest")
+INITS = ("kmeans", "random")
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Settings of :func:`fit_cuboids`.
+
+    num_cuboids: M, the number of cuboid slots (the fit decides how many exist); default 16.
+    steps: Adam steps. lr: learning rate of the cuboid parameters (centres, quaternions, log half
+      sizes); lr_logits: learning rate of the allocation logits.
+    lambda_compact: lambda_1 of Eq. (9), the weight of the compactness loss (paper: 0.1).
+    compactness_average: use the authors' code's form (mean_m sqrt(w_m + eps_sps))^2 = Eq. (6) / M^2
+      (default True, see the module docstring); False gives Eq. (6) as printed.
+    sigma_s: standard deviation of the sampling along the normals in Eq. (5) (paper: 0.05; 0 = none).
+    eps_sps: epsilon of the compactness loss, Eq. (6) (paper: 0.01).
+    eps_ext: existence threshold on the portions w_m (paper: 0.05, Sec. 3.4.3).
+    distance: "normal" (Eq. 5) or "nearest_surface" (the normal-blind ablation of Sec. 4.3).
+    allocation: "soft" (free softmax W, as the segmentation branch) or "nearest" (hard allocation to
+      the closest cuboid under ``distance``, the P2C-Dis ablation of Sec. 4.3).
+    init: "kmeans" (k-means++ seeding and Lloyd iterations on the positions) or "random" (centres at
+      M random points); both size each cuboid to its cluster and start W as a soft assignment to the
+      nearest centre. The initialisation depends only on the points, ``num_cuboids``, ``init`` and
+      ``seed``, so two configs that differ in the distance or the loss weights start identically.
+    init_sharpness: the initial logits are -sharpness * |p - c_m|^2 / (mean squared distance of the
+      points to their nearest centre); 0 starts from a uniform W. The default 0.1 starts from a
+      soft assignment, so every cuboid still feels the points of its neighbours: that is what lets
+      the fit merge cuboids that cover one part.
+    beta2: Adam's second-moment decay. The default 0.9 (instead of the usual 0.999) forgets the
+      large gradients of the first steps quickly, so the small, steady gradients that merge
+      over-split parts later in the fit still move the cuboids.
+    normalize: fit in normalised coordinates (bounding box centred, diagonal 1) and map back.
+    tol: a fit counts as converged when the mean total loss of the last 10 % of the steps is within
+      this relative tolerance of the mean of the 10 % before.
+    restarts: fit every shape this many times from different initialisations (one batch) and keep
+      the fit with the lowest final loss (costs ``restarts`` times more).
+    seed: seed of the initialisation and of the offsets along the normals.
+    """
+
+    num_cuboids: int = 16
+    steps: int = 300
+    lr: float = 0.01
+    lr_logits: float = 0.1
+    lambda_compact: float = 0.1
+    compactness_average: bool = True
+    sigma_s: float = 0.05
+    eps_sps: float = 0.01
+    eps_ext: float = 0.05
+    distance: str = "normal"
+    allocation: str = "soft"
+    init: str = "kmeans"
+    init_sharpness: float = 0.1
+    beta2: float = 0.9
+    normalize: bool = True
+    tol: float = 0.02
+    restarts: int = 1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.distance not in DISTANCES:
+            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
+        if self.allocation not in ALLOCATIONS:
+            raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
+        if self.init not in INITS:
+            raise ValueError(f"init must be one of {INITS}, got {self.init!r}")
+        for name in ("num_cuboids", "restarts", "seed"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < (0 if name == "seed" else 1):
+                rule = "a non-negative" if name == "seed" else "a positive"
+                raise ValueError(f"{name} must be {rule} integer, got {value!r}")
+        if not isinstance(self.steps, int) or isinstance(self.steps, bool) or self.steps < 0:
+            raise ValueError(f"steps must be a non-negative integer, got {self.steps!r}")
+        for name in ("lr", "lr_logits"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+        for name in ("lambda_compact", "sigma_s", "eps_sps", "init_sharpness", "tol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
+        if not (isinstance(self.beta2, (int, float)) and 0 <= self.beta2 < 1):
+            raise ValueError(f"beta2 must lie in [0, 1), got {self.beta2!r}")
+        if not 0 <= self.eps_ext < 1:
+            raise ValueError(f"eps_ext must lie in [0, 1), got {self.eps_ext!r}")
+
+    def replace(self, **changes) -> "FitConfig":
+        """A copy with some fields changed (validated again)."""
+        return FitConfig(**{**asdict(self), **changes})
+
+
+@dataclass
+class FitResult:
+    """What :func:`fit_cuboids` returns. Always batch-first: a single (N, 3) cloud gives B = 1.
+
+    cuboids: the fitted :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) in the input's coordinates,
+      with ``exists`` (B, M) set to the read-out w_m > eps_ext (the cuboid with the largest w_m always
+      exists).
+    labels: (B, N) long, each point's cuboid, argmax of W over the EXISTING cuboids (a point whose
+      largest W entry belongs to a dropped cuboid goes to its most likely existing one).
+    W: (B, N, M) the final allocation (softmax of the logits, or one-hot for ``allocation="nearest"``).
+    portions: (B, M) w_m = mean_n W_mn.
+    initial: the cuboids the optimisation started from (B, M, ...), input coordinates.
+    history: per-step loss terms averaged over the batch (of the kept restarts), lists of floats under
+      "total", "reconstruction", "compactness" and "existing" (mean number of cuboids with w_m > eps_ext).
+    converged: (B,) bool, see ``FitConfig.tol``.
+    final_loss: (B,) the total loss of the returned cuboids and W (without sampling along the normals),
+      in the coordinates the fit works in (normalised ones when ``config.normalize``).
+    elapsed_s: wall-clock time of the fit in seconds.
+    config: the :class:`FitConfig` used.
+    """
+
+    cuboids: Cuboids
+    labels: torch.Tensor
+    W: torch.Tensor
+    portions: torch.Tensor
+    initial: Cuboids
+    history: dict[str, list[float]]
+    converged: torch.Tensor
+    final_loss: torch.Tensor
+    elapsed_s: float
+    config: FitConfig = field(repr=False)
+
+    @property
+    def exists(self) -> torch.Tensor:
+        """(B, M) bool existence mask (the same as ``cuboids.exists``)."""
+        return self.cuboids.exists
+
+    def num_existing(self) -> torch.Tensor:
+        """(B,) long, the number of existing cuboids of every shape."""
+        return self.cuboids.exists.sum(dim=1)
+
+
+# ----------------------------------------------------------------------------------------------
+# Input checks
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_inputs(points, normals) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points and normals as (B, N, 3) float tensors (an (N, 3) cloud gets B = 1), normals unit."""
+    p = as_float_tensor(np.asarray(points) if not isinstance(points, torch.Tensor) else points, "points")
+    n = as_float_tensor(np.asarray(normals) if not isinstance(normals, torch.Tensor) else normals, "normals")
+    p, n = p.detach(), n.detach().to(device=p.device)
+    if p.dim() == 2:
+        p = p[None]
+    if n.dim() == 2:
+        n = n[None]
+    check_shape(p, ("B", "N", 3), "points (or (N, 3) for one shape)")
+    check_shape(n, ("B", "N", 3), "normals (or (N, 3) for one shape)")
+    if p.shape != n.shape:
+        raise ValueError(f"normals must have the shape of points {tuple(p.shape)}, got {tuple(n.shape)}")
+    if p.shape[1] == 0:
+        raise ValueError("points is empty (N = 0); a point cloud with at least num_cuboids points is needed")
+    check_finite(p, "points")
+    check_finite(n, "normals")
+    dtype = torch.promote_types(p.dtype, n.dtype)
+    p, n = p.to(dtype), n.to(dtype)
+    # Accept normals of any non-zero length (files often store them slightly off unit length):
+    # normalise them; zero vectors stay zero and are rejected by the check below.
+    n = n / torch.linalg.vector_norm(n, dim=-1, keepdim=True).clamp_min(1e-12)
+    check_unit_vectors(n, "normals")
+    return p, n
+
+
+# ----------------------------------------------------------------------------------------------
+# Initialisation
+# ----------------------------------------------------------------------------------------------
+
+
+def kmeans(
+    points: torch.Tensor, k: int, iterations: int = 20, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Batched k-means on positions: k-means++ seeding, then Lloyd iterations.
+
+    points: (B, N, 3) with N >= k. Returns (centers (B, k, 3), labels (B, N) long). The seeding
+    draws from ``generator`` only, so the result is repeatable. A cluster that loses all its points
+    keeps its previous centre.
+    """
+    if points.dim() != 3 or points.shape[-1] != 3:
+        raise ValueError(f"points must have shape (B, N, 3), got {tuple(points.shape)}")
+    b, n, _ = points.shape
+    if not isinstance(k, int) or k < 1 or k > n:
+        raise ValueError(f"k must be an integer in [1, N] = [1, {n}], got {k!r}")
+    batch = torch.arange(b, device=points.device)
+    first = torch.randint(n, (b,), generator=generator).to(points.device)
+    centers = [points[batch, first]]
+    nearest = (points - centers[0][:, None]).square().sum(-1)  # (B, N) squared distance to the seeds
+    for _ in range(1, k):  # k-means++: next seed with probability proportional to D^2
+        weights = nearest + 1e-12 * (nearest.sum(-1, keepdim=True) == 0)  # all points on the seeds: uniform
+        pick = torch.multinomial(weights.cpu(), 1, generator=generator)[:, 0].to(points.device)
+        centers.append(points[batch, pick])
+        nearest = torch.minimum(nearest, (points - centers[-1][:, None]).square().sum(-1))
+    c = torch.stack(centers, dim=1)  # (B, k, 3)
+    for _ in range(iterations):
+        labels = torch.cdist(points, c).argmin(dim=-1)  # (B, N)
+        one_hot = torch.nn.functional.one_hot(labels, k).to(points.dtype)  # (B, N, k)
+        count = one_hot.sum(dim=1)  # (B, k)
+        mean = torch.einsum("bnk,bnc->bkc", one_hot, points) / count.clamp_min(1)[..., None]
+        c = torch.where(count[..., None] > 0, mean, c)
+    return c, torch.cdist(points, c).argmin(dim=-1)
+
+
+def initial_cuboids(
+    points: torch.Tensor, config: FitConfig, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The starting point of :func:`fit_cuboids` (normally called by it).
+
+    points: (B, N, 3) in the coordinates the fit works in. Returns (centers (B, M, 3), quaternions
+    (B, M, 4) all identity, half_sizes (B, M, 3), logits (B, N, M)). Centres come from k-means
+    (``init="kmeans"``) or are M distinct random points (``init="random"``); each cuboid's half sizes
+    are sqrt(3) times the standard deviation of its cluster along each axis (the half extent of a
+    uniform distribution with that spread), at least 1 % of the cloud's bounding-box diagonal; the
+    logits are -init_sharpness * |p_n - c_m|^2 / D, with D the mean squared distance of the points to
+    their nearest centre, so W starts as a soft nearest-centre assignment.
+    """
+    b, n, _ = points.shape
+    m = config.num_cuboids
+    if config.init == "kmeans":
+        centers, labels = kmeans(points, m, generator=generator)
+    else:
+        pick = torch.stack([torch.randperm(n, generator=generator)[:m] for _ in range(b)]).to(points.device)
+        centers = torch.gather(points, 1, pick[..., None].expand(-1, -1, 3))
+        labels = torch.cdist(points, centers).argmin(dim=-1)
+    one_hot = torch.nn.functional.one_hot(labels, m).to(points.dtype)  # (B, N, M)
+    count = one_hot.sum(dim=1).clamp_min(1)[..., None]  # (B, M, 1)
+    mean = torch.einsum("bnm,bnc->bmc", one_hot, points) / count
+    var = torch.einsum("bnm,bnmc->bmc", one_hot, (points[:, :, None] - mean[:, None]).square()) / count
+    diagonal = torch.linalg.vector_norm(points.amax(dim=1) - points.amin(dim=1), dim=-1)  # (B,)
+    half_sizes = torch.maximum(math.sqrt(3) * var.sqrt(), 0.01 * diagonal[:, None, None])
+    quaternions = torch.zeros(b, m, 4, dtype=points.dtype, device=points.device)
+    quaternions[..., 0] = 1
+    d2 = torch.cdist(points, centers).square()  # (B, N, M)
+    spread = d2.amin(dim=-1).mean(dim=-1).clamp_min(1e-12)[:, None, None]
+    logits = -config.init_sharpness * d2 / spread
+    return centers, quaternions, half_sizes, logits
+
+
+# ----------------------------------------------------------------------------------------------
+# The fit
+# ----------------------------------------------------------------------------------------------
+
+
+def _converged(totals: torch.Tensor, tol: float) -> torch.Tensor:
+    """(B,) bool from the per-step totals (steps, B): last 10 % of steps vs the 10 % before."""
+    steps = totals.shape[0]
+    window = max(1, steps // 10)
+    if steps < 2 * window or steps < 2:
+        return torch.zeros(totals.shape[1], dtype=torch.bool)
+    last = totals[-window:].mean(dim=0)
+    before = totals[-2 * window : -window].mean(dim=0)
+    return (last - before).abs() <= tol * last.abs().clamp_min(1e-12)
+
+
+def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool = False) -> FitResult:
+    """Fit ``config.num_cuboids`` cuboids to each point cloud by gradient descent (see the module doc).
+
+    points, normals: (N, 3) for one shape or (B, N, 3) for B shapes fitted at once (independently,
+    in one batched optimisation), numpy arrays or tensors; normals must be non-zero (they are
+    normalised to unit length) and N >= num_cuboids. The fit runs on the points' device, in their
+    float dtype (float32 unless float64 is given).
+
+    With ``config.restarts = R > 1`` every shape is fitted R times from different initialisations (in
+    the same batch) and the fit with the lowest final loss is kept: the losses are not convex, and
+    the lowest loss is the best abstraction by the paper's own criterion.
+
+    Deterministic for a given ``config`` (the seed drives the initialisation and the offsets along
+    the normals). ``progress=True`` shows a tqdm bar with the current loss terms and reports shapes
+    that have not converged.
+
+    Returns a :class:`FitResult` (always batch-first). Raises ``ValueError`` for bad inputs and
+    ``FloatingPointError`` if a loss becomes NaN or infinite (the message names the step and the
+    shape; lower ``lr``/``lr_logits``).
+    """
+    if not isinstance(config, FitConfig):
+        raise TypeError(f"config must be a FitConfig, got {type(config).__name__}")
+    start_time = time.perf_counter()
+    p, nrm = _check_inputs(points, normals)
+    b, n, _ = p.shape
+    if n < config.num_cuboids:
+        raise ValueError(f"points has N = {n} points per shape, fewer than num_cuboids = {config.num_cuboids}")
+    if config.normalize:
+        p, center, scale = normalize(p)  # raises on a degenerate cloud (all points identical)
+    else:
+        diagonal = torch.linalg.vector_norm(p.amax(dim=1) - p.amin(dim=1), dim=-1)
+        if (diagonal <= 0).any():
+            raise ValueError("points are all identical in some shape: there is no surface to fit cuboids to")
+        center, scale = torch.zeros(b, 3, dtype=p.dtype, device=p.device), torch.ones(b, dtype=p.dtype, device=p.device)
+
+    r = config.restarts
+    run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress)
+    # keep, for every shape, the restart with the lowest final loss (rows b * R ... b * R + R - 1)
+    best = run["final_loss"].view(b, r).argmin(dim=1) + torch.arange(b, device=p.device) * r
+    pick = {key: value[best] for key, value in run.items() if key != "records"}
+    records = {key: value[:, best.cpu()] for key, value in run["records"].items()}
+
+    history = {key: value.mean(dim=1).tolist() for key, value in records.items()}
+    converged = _converged(records["total"], config.tol)
+    if progress and not bool(converged.all()):
+        tqdm.write(
+            f"fit_cuboids: {int((~converged).sum())} of {b} shape(s) not converged after {config.steps} steps "
+            f"(the loss still changes by more than tol = {config.tol}); consider more steps"
+        )
+    with torch.no_grad():
+        to_input = lambda c, s: (c * scale[:, None, None] + center[:, None], s * scale[:, None, None])  # noqa: E731
+        fitted_c, fitted_s = to_input(pick["centers"], pick["half_sizes"])
+        init_c, init_s = to_input(pick["initial_centers"], pick["initial_half_sizes"])
+    exists = pick["exists"]
+    return FitResult(
+        cuboids=Cuboids(fitted_c, pick["quaternions"], fitted_s, exists, validate=False),
+        labels=pick["W"].masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1),
+        W=pick["W"],
+        portions=pick["portions"],
+        initial=Cuboids(init_c, pick["initial_quaternions"], init_s, validate=False),
+        history=history,
+        converged=converged,
+        final_loss=pick["final_loss"],
+        elapsed_s=time.perf_counter() - start_time,
+        config=config,
+    )
+
+
+def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: bool) -> dict:
+    """Adam on the free variables of every row of (B, N, 3) normalised points; see :func:`fit_cuboids`.
+
+    Returns detached per-row tensors (centers, quaternions, half_sizes, W, portions, exists,
+    final_loss, initial_*) and "records": per-step (steps, B) tensors of the loss terms.
+    """
+    b, n, _ = p.shape
+    generator = torch.Generator().manual_seed(config.seed)
+    c0, q0, s0, logits0 = initial_cuboids(p, config, generator)
+    centers = c0.clone().requires_grad_(True)
+    quat_raw = q0.clone().requires_grad_(True)
+    log_sizes = s0.log().requires_grad_(True)
+    logits = logits0.transpose(1, 2).contiguous().requires_grad_(config.allocation == "soft")  # (B, M, N)
+    groups = [{"params": [centers, quat_raw, log_sizes], "lr": config.lr}]
+    if config.allocation == "soft":
+        groups.append({"params": [logits], "lr": config.lr_logits})
+    optimizer = torch.optim.Adam(groups, betas=(0.9, config.beta2))
+
+    def evaluate(offsets: torch.Tensor | None):
+        quaternions = quat_raw / torch.linalg.vector_norm(quat_raw, dim=-1, keepdim=True)
+        half_sizes = log_sizes.exp()
+        if config.distance == "normal":
+            d = point_to_cuboid_distance(
+                p, nrm, centers, quaternions, half_sizes, sigma_s=0.0, offsets=offsets, validate=False
+            )
+        else:
+            d = nearest_surface_distance(p, centers, quaternions, half_sizes, validate=False)
+        if config.allocation == "nearest":
+            W = nearest_cuboid_allocation(d)
+        else:  # logits are stored (B, M, N): a softmax over a short LAST axis is many times slower on CPU
+            W = torch.softmax(logits, dim=1).transpose(1, 2)
+        w = allocation_portions(W)
+        recons = reconstruction_loss(W, d)
+        compact = compactness_loss(w, config.eps_sps, average_over_cuboids=config.compactness_average)
+        return recons + config.lambda_compact * compact, recons, compact, W, w
+
+    sampled = config.distance == "normal" and config.sigma_s > 0
+    records = {key: torch.empty(config.steps, b, dtype=torch.float64)
+               for key in ("total", "reconstruction", "compactness", "existing")}
+    bar = tqdm(range(config.steps), desc="fitting cuboids", disable=not progress, leave=False)
+    for step in bar:
+        offsets = None
+        if sampled:
+            offsets = config.sigma_s * torch.randn(b, n, generator=generator, dtype=p.dtype).to(p.device)
+        total, recons, compact, W, w = evaluate(offsets)
+        if not torch.isfinite(total).all():
+            total, recons, compact = total.detach(), recons.detach(), compact.detach()
+            bad = int(torch.nonzero(~torch.isfinite(total))[0]) // config.restarts
+            raise FloatingPointError(
+                f"fit_cuboids diverged at step {step}: the loss of shape {bad} is not finite "
+                f"(reconstruction {float(recons.max())}, compactness {float(compact.max())}); lower lr or lr_logits"
+            )
+        optimizer.zero_grad(set_to_none=True)
+        total.sum().backward()  # a sum, so every shape's gradient is independent of the batch size
+        optimizer.step()
+        existing = (w.detach() > config.eps_ext).sum(dim=-1)
+        for key, value in zip(records, (total, recons, compact, existing)):
+            records[key][step] = value.detach().double().cpu()
+        if progress and (step % 10 == 0 or step == config.steps - 1):
+            bar.set_postfix(loss=f"{float(total.detach().mean()):.4g}", recons=f"{float(recons.detach().mean()):.3g}",
+                            cuboids=f"{float(existing.double().mean()):.1f}")
+    bar.close()
+
+    with torch.no_grad():
+        final_loss, _, _, W, w = evaluate(None)
+        exists = existence_targets(w, config.eps_ext) > 0
+        exists |= w == w.amax(dim=-1, keepdim=True)  # at least one cuboid per shape
+        quaternions = standardize_quaternion(quat_raw / torch.linalg.vector_norm(quat_raw, dim=-1, keepdim=True))
+    return {
+        "centers": centers.detach(), "quaternions": quaternions, "half_sizes": log_sizes.detach().exp(),
+        "W": W.contiguous(), "portions": w, "exists": exists, "final_loss": final_loss,
+        "initial_centers": c0, "initial_quaternions": q0, "initial_half_sizes": s0, "records": records,
+    }

@@ -1,0 +1,205 @@
+"""Tests of cuboidlib.viz: the palette, the plotly figures and the matplotlib pictures."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.colors import to_rgb  # noqa: E402
+
+from cuboidlib.geometry import Cuboids, cuboid_corners  # noqa: E402
+from cuboidlib.viz import (  # noqa: E402
+    PALETTE,
+    cuboid_color,
+    plot_cuboids_matplotlib,
+    plot_cuboids_matplotlib_grid,
+    plot_cuboids_plotly,
+    plot_cuboids_plotly_grid,
+)
+
+
+@pytest.fixture()
+def scene():
+    """Three axis-aligned cuboids (the last one not existing) and 30 points labelled 0, 0, 1, 1, 2, ..."""
+    centers = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    quaternions = torch.tensor([[[1.0, 0.0, 0.0, 0.0]] * 3])
+    half_sizes = torch.tensor([[[0.1, 0.2, 0.3], [0.2, 0.2, 0.2], [0.3, 0.1, 0.1]]])
+    exists = torch.tensor([[True, True, False]])
+    g = torch.Generator().manual_seed(0)
+    points = torch.rand(30, 3, generator=g)
+    labels = torch.arange(30) % 3
+    return points, labels, Cuboids(centers, quaternions, half_sizes, exists)
+
+
+def _traces(fig, kind):
+    return [t for t in fig.data if t.type == kind]
+
+
+# ----------------------------------------------------------------------------------------------
+# Palette
+# ----------------------------------------------------------------------------------------------
+
+
+def test_palette_has_at_least_24_distinct_valid_hex_colours():
+    assert len(PALETTE) >= 24
+    assert all(re.fullmatch(r"#[0-9a-f]{6}", c) for c in PALETTE)
+    assert len(set(PALETTE)) == len(PALETTE)
+    # distinct enough to tell apart: no two colours closer than 0.05 in RGB (unit cube)
+    rgb = np.array([to_rgb(c) for c in PALETTE])
+    gaps = np.linalg.norm(rgb[:, None] - rgb[None], axis=-1) + np.eye(len(PALETTE))
+    assert gaps.min() > 0.05
+
+
+def test_cuboid_color_is_fixed_per_index_and_cycles():
+    assert [cuboid_color(m) for m in range(len(PALETTE))] == list(PALETTE)
+    assert cuboid_color(len(PALETTE) + 3) == PALETTE[3]
+    assert cuboid_color(np.int64(2)) == PALETTE[2]
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="cuboid index must be a non-negative integer"):
+            cuboid_color(bad)
+
+
+# ----------------------------------------------------------------------------------------------
+# Plotly
+# ----------------------------------------------------------------------------------------------
+
+
+def test_plotly_figure_has_one_point_trace_per_label_and_a_mesh_per_existing_cuboid(scene):
+    points, labels, cuboids = scene
+    fig = plot_cuboids_plotly(points, labels, cuboids, title="three cuboids")
+    markers = [t for t in _traces(fig, "scatter3d") if t.mode == "markers"]
+    meshes = _traces(fig, "mesh3d")
+    edges = [t for t in _traces(fig, "scatter3d") if t.mode == "lines"]
+    assert [t.name for t in markers] == ["cuboid 0", "cuboid 1", "cuboid 2"]
+    assert [t.marker.color for t in markers] == [PALETTE[0], PALETTE[1], PALETTE[2]]
+    assert sum(len(t.x) for t in markers) == 30
+    assert [t.name for t in meshes] == ["cuboid 0", "cuboid 1"]  # cuboid 2 does not exist
+    assert [t.color for t in meshes] == [PALETTE[0], PALETTE[1]]
+    assert all(t.opacity == 0.25 and len(t.x) == 8 and len(t.i) == 12 for t in meshes)
+    assert len(edges) == 2 and all(len(t.x) == 36 for t in edges)  # 12 segments, each (a, b, gap)
+    assert fig.layout.scene.aspectmode == "data"
+    assert fig.layout.title.text == "three cuboids"
+
+
+def test_plotly_mesh_vertices_are_the_cuboid_corners(scene):
+    points, labels, cuboids = scene
+    mesh = _traces(plot_cuboids_plotly(points, labels, cuboids, decimals=6), "mesh3d")[1]
+    corners = cuboid_corners(cuboids.centers, cuboids.quaternions, cuboids.half_sizes)[0, 1].numpy()
+    np.testing.assert_allclose(np.stack([mesh.x, mesh.y, mesh.z], axis=1), corners, atol=1e-6)
+
+
+def test_plotly_accepts_a_tuple_an_explicit_mask_and_no_labels(scene):
+    points, _, cuboids = scene
+    as_tuple = (cuboids.centers[0], cuboids.quaternions[0], cuboids.half_sizes[0])
+    fig = plot_cuboids_plotly(points.numpy(), None, as_tuple, exists=np.array([False, True, True]))
+    assert [t.name for t in _traces(fig, "mesh3d")] == ["cuboid 1", "cuboid 2"]
+    markers = [t for t in _traces(fig, "scatter3d") if t.mode == "markers"]
+    assert len(markers) == 1 and markers[0].name == "points"
+
+
+def test_plotly_figure_is_small_subsampled_and_rounded(scene):
+    _, _, cuboids = scene
+    g = torch.Generator().manual_seed(1)
+    many = torch.rand(10000, 3, generator=g, dtype=torch.float64)
+    fig = plot_cuboids_plotly(many, torch.zeros(10000, dtype=torch.long), cuboids, max_points=500, decimals=4)
+    marker = [t for t in _traces(fig, "scatter3d") if t.mode == "markers"][0]
+    assert len(marker.x) == 500
+    np.testing.assert_allclose(np.asarray(marker.x, dtype=np.float64), np.round(np.asarray(marker.x, np.float64), 4),
+                               atol=1e-6)
+    assert len(json.dumps(fig.to_plotly_json(), default=str)) < 60_000
+
+
+def test_plotly_grid_has_one_scene_per_shape(scene):
+    points, labels, cuboids = scene
+    items = [(points, labels, cuboids), (points, labels, cuboids, torch.tensor([True, False, False]))]
+    fig = plot_cuboids_plotly_grid(items, titles=["a", "b"], cols=2)
+    meshes = _traces(fig, "mesh3d")
+    assert [t.scene for t in meshes] == ["scene", "scene", "scene2"]
+    assert fig.layout.scene2.aspectmode == "data"
+    assert [a.text for a in fig.layout.annotations] == ["a", "b"]
+    assert fig.layout.showlegend is False
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        ({"points": torch.zeros(5, 2)}, ValueError, r"points \(one shape\) must have shape \(N, 3\)"),
+        ({"labels": torch.zeros(7, dtype=torch.long)}, ValueError, r"labels must have shape \(N,\)"),
+        ({"labels": torch.zeros(30)}, ValueError, "labels must hold integer cuboid indices"),
+        ({"cuboids": "boxes"}, TypeError, "cuboids must be a Cuboids batch"),
+        ({"index": 3}, IndexError, "index 3 is out of range"),
+        ({"opacity": 2.0}, ValueError, r"opacity must lie in \[0, 1\]"),
+        ({"max_points": 0}, ValueError, "max_points must be a positive integer"),
+        ({"exists": np.array([True, False])}, ValueError, "exists must have shape"),
+    ],
+)
+def test_plotly_rejects_bad_inputs(scene, kwargs, error, match):
+    points, labels, cuboids = scene
+    args = {"points": points, "labels": labels, "cuboids": cuboids, **kwargs}
+    with pytest.raises(error, match=match):
+        plot_cuboids_plotly(**args)
+
+
+def test_plotly_rejects_batched_cuboid_tuples_and_nan_points(scene):
+    points, labels, cuboids = scene
+    with pytest.raises(ValueError, match="centers must describe ONE shape"):
+        plot_cuboids_plotly(points, labels, (cuboids.centers, cuboids.quaternions, cuboids.half_sizes))
+    points = points.clone()
+    points[4, 1] = float("nan")
+    with pytest.raises(ValueError, match="points contains 1 NaN"):
+        plot_cuboids_plotly(points, labels, cuboids)
+
+
+def test_grids_reject_empty_or_mismatched_items(scene):
+    points, labels, cuboids = scene
+    for grid in (plot_cuboids_plotly_grid, plot_cuboids_matplotlib_grid):
+        with pytest.raises(ValueError, match="items is empty"):
+            grid([])
+        with pytest.raises(ValueError, match="titles has 2 entries for 1 items"):
+            grid([(points, labels, cuboids)], titles=["a", "b"])
+        with pytest.raises(ValueError, match=r"item 0 must be a tuple"):
+            grid([(points, labels)])
+
+
+# ----------------------------------------------------------------------------------------------
+# Matplotlib
+# ----------------------------------------------------------------------------------------------
+
+
+def test_matplotlib_draws_points_and_one_box_per_existing_cuboid(scene):
+    points, labels, cuboids = scene
+    fig = plt.figure()
+    ax = fig.add_subplot(projection="3d")
+    plot_cuboids_matplotlib(ax, points, labels, cuboids, title="t")
+    boxes = [c for c in ax.collections if type(c).__name__ == "Poly3DCollection"]
+    assert len(boxes) == 2
+    face_colors = [tuple(np.round(b.get_facecolor()[0][:3], 3)) for b in boxes]
+    assert face_colors == [tuple(np.round(to_rgb(PALETTE[m]), 3)) for m in (0, 1)]
+    scatter = [c for c in ax.collections if type(c).__name__ == "Path3DCollection"][0]
+    assert len(scatter.get_offsets()) == 30
+    assert ax.get_title() == "t"
+    plt.close(fig)
+
+
+def test_matplotlib_grid_makes_one_3d_panel_per_shape(scene):
+    points, labels, cuboids = scene
+    fig = plot_cuboids_matplotlib_grid([(points, labels, cuboids)] * 4, titles=list("abcd"), cols=3)
+    assert len(fig.axes) == 4 and all(ax.name == "3d" for ax in fig.axes)
+    assert [ax.get_title() for ax in fig.axes] == list("abcd")
+    plt.close(fig)
+
+
+def test_matplotlib_needs_a_3d_axes(scene):
+    points, labels, cuboids = scene
+    fig, ax = plt.subplots()
+    with pytest.raises(TypeError, match="ax must be a matplotlib 3D axes"):
+        plot_cuboids_matplotlib(ax, points, labels, cuboids)
+    plt.close(fig)
