@@ -17,8 +17,15 @@ class UserError(Exception):
     """An error caused by the user's input: printed as one line, exit code 2."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (plus where to find help), exit code 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="cuboidlib",
         description="Cuboid shape abstraction via joint segmentation (Yang & Chen, SIGGRAPH 2021).",
     )
@@ -26,7 +33,644 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--traceback", action="store_true", help="show the full traceback on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
+    _add_samples_command(sub)
+    _add_train_command(sub)
+    _add_evaluate_command(sub)
+    _add_fit_command(sub)
+    _add_abstract_command(sub)
+    _add_generate_command(sub)
+    _add_interpolate_command(sub)
+    _add_view_command(sub)
+    for command in sub.choices.values():  # --traceback is also accepted after the subcommand
+        command.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
+                             help="show the full traceback on errors")
     return parser
+
+
+def _add_samples_command(sub) -> None:
+    p = sub.add_parser(
+        "samples",
+        help="regenerate the sample shapes (meshes, labelled point clouds, figure) of data_samples/",
+        description="Write a few procedural shapes per category (chair, table, airplane, animal) as PLY "
+        "meshes and as PLY point clouds with normals and part labels, an index.csv and samples.png.",
+    )
+    p.add_argument("--out", default="data_samples", help="output folder (default: data_samples)")
+    p.add_argument("--per-category", type=int, default=3, help="shapes per category (default: 3)")
+    p.add_argument("--points", type=int, default=2048, help="points per point cloud (default: 2048)")
+    p.add_argument("--seed", type=int, default=0, help="collection seed (default: 0)")
+    p.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
+    p.set_defaults(func=_cmd_samples)
+
+
+def _cmd_samples(args) -> int:
+    from .io import write_data_samples
+
+    if args.per_category < 1 or args.points < 1 or args.seed < 0:
+        raise UserError("--per-category and --points must be positive and --seed non-negative")
+    written = write_data_samples(args.out, args.per_category, args.points, args.seed, figure=not args.no_figure)
+    print(f"wrote {len(written)} files to {args.out}")
+    return 0
+
+
+def _add_train_command(sub) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train the network (Adam, lr 6e-4, batch 32 by default) with checkpoints and resume",
+        description="Train the cuboid abstraction network (Sec. 3.4.5). Settings come from the defaults "
+        "(the paper's), then --config FILE (a JSON object with any TrainConfig fields; 'model' and 'loss' may "
+        "be partial), then the flags below, then --set. Writes OUT/config.json, OUT/last.pt (full state, "
+        "for --resume), OUT/best.pt (lowest validation loss) and OUT/log.csv. --resume continues OUT/last.pt "
+        "exactly (only budget and bookkeeping fields may change). Under torchrun the same command trains "
+        "with DistributedDataParallel: torchrun --nproc_per_node=2 -m cuboidlib.train --config cfg.json --out DIR",
+    )
+    p.add_argument("--config", help="JSON config file (TrainConfig fields)")
+    p.add_argument("--out", required=True, help="run folder (last.pt, best.pt, config.json, log.csv)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
+    p.add_argument("--max-minutes", type=float, help="time budget: stop cleanly and checkpoint after this long")
+    p.add_argument("--max-steps", type=int, help="stop after this many optimiser steps in total")
+    p.add_argument("--epochs", type=int, help="epochs (paper: 1000)")
+    p.add_argument("--category", help="procedural category: chair, table, airplane or animal")
+    p.add_argument("--shapes", type=int, dest="n_shapes", help="shapes in the procedural collection")
+    p.add_argument("--points", type=int, dest="n_points", help="points per shape (paper: 4096)")
+    p.add_argument("--data-dir", help="folder of point-cloud / mesh files instead of a procedural collection")
+    p.add_argument("--data-seed", type=int, help="seed of the collection")
+    p.add_argument("--split", type=float, nargs=3, dest="split_fractions", metavar=("TRAIN", "VAL", "TEST"),
+                   help="split fractions (default 0.7 0.1 0.2)")
+    p.add_argument("--split-seed", type=int, help="seed of the train/validation/test split")
+    p.add_argument("--model-size", choices=("paper", "small"),
+                   help="replace the model section by the paper's sizes or ModelConfig.small()")
+    p.add_argument("--num-cuboids", type=int, help="M, cuboids per shape (paper: 16 for chairs)")
+    p.add_argument("--loss-preset", choices=("paper", "authors_code"),
+                   help="replace the loss section by the paper's settings or the authors' code choices")
+    p.add_argument("--lr", type=float, help="Adam learning rate (paper: 6e-4)")
+    p.add_argument("--batch-size", type=int, help="shapes per step, over all processes (paper: 32)")
+    p.add_argument("--checkpoint-every", type=int, help="write last.pt every this many steps")
+    p.add_argument("--validate-every", type=int, help="validation loss (and best.pt) every this many steps")
+    p.add_argument("--seed", type=int, help="seed of the weights, data order and sampling")
+    p.add_argument("--device", help="auto (CUDA when available), cpu or cuda[:i]")
+    p.add_argument("--threads", type=int, dest="num_threads", help="torch.set_num_threads")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="any other field, VALUE in JSON, e.g. --set loss.lambda_compact=0.2 --set model.k=16")
+    p.add_argument("--print-config", action="store_true", help="print the resulting config and exit")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no messages")
+    p.set_defaults(func=_cmd_train)
+
+
+def _train_config_from_args(args):
+    """Defaults (or the resumed run's config) < --config file < flags < --set."""
+    import json
+    from pathlib import Path
+
+    from .checkpoint import load_checkpoint
+    from .losses import LossConfig
+    from .model import ModelConfig
+    from .train import TrainConfig, read_config_file
+
+    last = Path(args.out) / "last.pt"
+    data = load_checkpoint(last)["config"] if args.resume and last.is_file() else TrainConfig().to_dict()
+
+    def merge(update: dict) -> None:
+        for key, value in update.items():
+            if key in ("model", "loss") and isinstance(value, dict):
+                data[key] = {**data[key], **value}
+            else:
+                data[key] = value
+
+    if args.config:
+        merge(read_config_file(args.config))
+    if args.model_size:
+        data["model"] = (ModelConfig.small() if args.model_size == "small" else ModelConfig()).to_dict()
+    if args.loss_preset:
+        data["loss"] = (LossConfig.authors_code() if args.loss_preset == "authors_code" else LossConfig()).to_dict()
+    flags = {k: getattr(args, k) for k in ("max_minutes", "max_steps", "epochs", "category", "n_shapes", "n_points",
+                                           "data_dir", "data_seed", "split_fractions", "split_seed", "lr",
+                                           "batch_size", "checkpoint_every", "validate_every", "seed", "device",
+                                           "num_threads")}
+    merge({k: v for k, v in flags.items() if v is not None})
+    if args.num_cuboids is not None:
+        data["model"] = {**data["model"], "num_cuboids": args.num_cuboids}
+    for item in args.set:
+        key, sep, raw = item.partition("=")
+        if not sep:
+            raise UserError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw  # a bare string, e.g. --set loss.distance=chamfer
+        section, dot, name = key.partition(".")
+        if dot and section in ("model", "loss"):
+            data[section] = {**data[section], name: value}
+        else:
+            data[key] = value
+    return TrainConfig.from_dict(data)
+
+
+def _cmd_train(args) -> int:
+    from .train import Trainer, TrainingDiverged
+
+    config = _train_config_from_args(args)
+    if args.print_config:
+        import json
+
+        print(json.dumps(config.to_dict(), indent=2))
+        return 0
+    try:
+        trainer = Trainer(config, args.out, resume=args.resume, quiet=args.quiet)
+        result = trainer.run()
+    except TrainingDiverged as exc:
+        print(f"cuboidlib train: {exc}", file=sys.stderr)
+        return 3
+    if not args.quiet and trainer.dist.is_main:
+        print(f"{result.stopped}: step {result.step} (epoch {result.epoch}); best validation loss "
+              f"{result.best_val:.5f} at step {result.best_step}; files in {result.out_dir}")
+    return 0
+
+
+def _add_evaluate_command(sub) -> None:
+    p = sub.add_parser(
+        "evaluate",
+        help="score a checkpoint on its test split: Chamfer distance, normal consistency, mIoU, N_AC",
+        description="Run a checkpoint's network on a split of the data it was trained with (by default the "
+        "test split, which training never uses) and print Chamfer distance (convention stated under the "
+        "table), normal consistency, mIoU by the paper's label transfer (labels from a seeded 20 %% of the "
+        "split, scored on the other 80 %%) and the average number of existing cuboids N_AC. --baseline adds "
+        "the k-means + oriented-box baseline scored the same way.",
+    )
+    p.add_argument("checkpoint", help="a checkpoint written by cuboidlib train (best.pt or last.pt)")
+    p.add_argument("--split", choices=("train", "val", "test"), default="test", help="split to score (default: test)")
+    p.add_argument("--baseline", action="store_true", help="also score the k-means + oriented-box baseline")
+    p.add_argument("--baseline-boxes", type=int,
+                   help="boxes per shape for the baseline (default: the network's N_AC, rounded)")
+    p.add_argument("--json", metavar="OUT", help="also write the results as JSON to OUT")
+    p.add_argument("--chamfer-norm", action="append", choices=("squared_l2", "l2", "l1"),
+                   help="Chamfer distance norm, repeat for several columns (default: squared_l2)")
+    p.add_argument("--chamfer-directions", choices=("sum", "mean"), default="sum",
+                   help="combine the two directions by their sum (default) or mean")
+    p.add_argument("--chamfer-scale", type=float, default=1.0, help="factor applied to the Chamfer distance")
+    p.add_argument("--samples", type=int, default=4096, help="points sampled on the cuboids (default: 4096)")
+    p.add_argument("--label-fraction", type=float, default=0.2,
+                   help="fraction of the split whose labels name the cuboids (default: 0.2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the surface samples and label-transfer shapes")
+    p.add_argument("--batch-size", type=int, default=32, help="shapes per forward pass")
+    p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda[:i]")
+    p.set_defaults(func=_cmd_evaluate)
+
+
+def _cmd_evaluate(args) -> int:
+    import json
+    from pathlib import Path
+
+    from .checkpoint import load_model
+    from .evaluation import evaluate_baseline, evaluate_model, format_table
+    from .metrics import ChamferConvention
+    from .train import TrainConfig, load_splits, resolve_device
+
+    model, state = load_model(args.checkpoint, device=resolve_device(args.device))
+    config = TrainConfig.from_dict(state["config"])
+    shapes = load_splits(config)[args.split]
+    conventions = [ChamferConvention(norm, args.chamfer_directions, args.chamfer_scale, args.samples)
+                   for norm in (args.chamfer_norm or ["squared_l2"])]
+    options = dict(label_transfer_fraction=args.label_fraction, conventions=conventions, seed=args.seed)
+    step = state.get("step")
+    centroids = config.loss_config.centers_from_allocation  # cuboids where the losses put them in training
+    name = f"network (step {step}{', centroid centres' if centroids else ''})"
+    results = [evaluate_model(model, shapes, batch_size=args.batch_size, name=name,
+                              centers_from_allocation=centroids, **options)]
+    if args.baseline:
+        boxes = args.baseline_boxes or max(1, round(results[0]["n_ac"]))
+        results.append(evaluate_baseline(shapes, boxes, **options))
+    title = (f"{args.checkpoint}: {config.category}, {args.split} split ({len(shapes)} shapes, "
+             f"{config.n_points} points each)")
+    print(format_table(results, title))
+    if args.json:
+        out = {"checkpoint": str(args.checkpoint), "split": args.split, "config": config.to_dict(), "results": results}
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
+# Abstraction of one shape (fit, abstract), applications (generate, interpolate) and the viewer
+# ----------------------------------------------------------------------------------------------
+
+
+# Progress bars appear only when a step takes longer than this many seconds.
+_BAR_DELAY = 0.5
+# The mesh formats of cuboidlib.export.MESH_FORMATS, known without importing torch while the arguments
+# are parsed (tests/test_cli.py checks that the two agree).
+_MESH_FORMATS = ("glb", "obj", "ply")
+
+
+class _FitDefault:
+    """A :class:`~cuboidlib.fitting.FitConfig` default: looked up only when --help shows it or the fit runs,
+    so building the parser does not import torch."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def value(self):
+        from .fitting import FitConfig
+
+        return getattr(FitConfig(), self.name)
+
+    def __str__(self) -> str:
+        return str(self.value())
+
+
+def _int_at_least(minimum: int):
+    """An argparse type: an integer >= minimum (0 or 1), with a one-line message otherwise."""
+    rule = "a positive integer" if minimum == 1 else "a non-negative integer"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {rule}, got {text!r}")
+        return value
+
+    return parse
+
+
+_positive_int = _int_at_least(1)
+_non_negative_int = _int_at_least(0)
+
+
+def _threshold(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}") from None
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}")
+    return value
+
+
+def _mesh_formats(text: str) -> tuple[str, ...]:
+    chosen = tuple(f.strip().lower().lstrip(".") for f in text.split(","))
+    unknown = [f for f in chosen if f not in _MESH_FORMATS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown mesh format {unknown[0]!r}; expected a comma-separated "
+                                         f"list of {', '.join(_MESH_FORMATS)}")
+    return tuple(dict.fromkeys(chosen))
+
+
+def _add_output_options(p, what: str) -> None:
+    """--out, --mesh-format, --quiet (shared by fit, abstract, generate, interpolate)."""
+    p.add_argument("--out", required=True, metavar="DIR", help=f"output folder for {what}")
+    p.add_argument("--mesh-format", type=_mesh_formats, default=("glb",), metavar="FORMATS",
+                   help=f"cuboid mesh formats to write, comma-separated: any of {','.join(_MESH_FORMATS)} "
+                   "(default: glb)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars and no messages")
+
+
+def _add_shape_options(p) -> None:
+    """Options of the commands that write one shape's result (fit, abstract)."""
+    p.add_argument("--seed", type=_non_negative_int, default=0,
+                   help="seed of the point sampling, the fit and the Chamfer samples (default: 0)")
+    p.add_argument("--normalized", action="store_true",
+                   help="write in the normalised frame (bounding box centred, diagonal 1) instead of the input's")
+    p.add_argument("--part-names", type=_part_names, metavar="NAMES",
+                   help="comma-separated names of the input's part labels (e.g. back,seat,leg,arm), for the JSON")
+
+
+def _add_model_options(p) -> None:
+    p.add_argument("--model", required=True, metavar="CHECKPOINT",
+                   help="a checkpoint file, a 'cuboidlib train' run folder (its best.pt) or the name of a "
+                   "committed checkpoint (e.g. chair = data_samples/checkpoints/chair.pt)")
+    p.add_argument("--threshold", type=_threshold, default=0.5,
+                   help="a cuboid exists when its existence probability exceeds this (default: 0.5)")
+    p.add_argument("--device", default="cpu", help="cpu (default), cuda[:i] or auto")
+
+
+def _check_out_dir(out: str) -> None:
+    from pathlib import Path
+
+    if Path(out).exists() and not Path(out).is_dir():
+        raise UserError(f"--out {out}: exists and is not a folder")
+
+
+def _check_input(path: str) -> None:
+    """Fail fast (before torch is imported) on a missing input file."""
+    from pathlib import Path
+
+    file = Path(path)
+    if not file.exists():
+        raise FileNotFoundError(f"{file}: no such file")
+    if file.is_dir():
+        raise UserError(f"{file}: is a folder; give a mesh or point cloud file")
+
+
+def _load_shape(path: str, n_points: int, seed: int):
+    """A mesh (sampled with n_points) or a point cloud (subsampled to at most n_points), normalised."""
+    from pathlib import Path
+
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES, is_mesh_file, load_point_cloud, read_point_cloud
+
+    _check_input(path)
+    file = Path(path)
+    if file.suffix.lower() not in set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES):
+        raise UserError(f"{file}: unsupported file type {file.suffix or '(no suffix)'!r}; expected a mesh "
+                        f"({' '.join(MESH_SUFFIXES)}) or a point cloud ({' '.join(POINT_CLOUD_SUFFIXES)})")
+    if not is_mesh_file(file):
+        n_points = min(n_points, len(read_point_cloud(file)))
+    return load_point_cloud(file, n_points, seed)
+
+
+def _check_part_names(args, pc) -> None:
+    names = args.part_names
+    if names and pc.labels is not None and len(pc.labels) and int(pc.labels.max()) >= len(names):
+        raise UserError(f"{args.shape}: has part labels up to {int(pc.labels.max())} but --part-names gives only "
+                        f"{len(names)} names")
+
+
+def _part_names(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(","))
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"expected comma-separated non-empty names, got {text!r}")
+    return names
+
+
+def _finish_result(args, cuboids, pc, segmentation, method: dict, start: float, bar) -> int:
+    """Chamfer distance, part labels, files and summary of fit / abstract (cuboids normalised, (1, M))."""
+    import time
+    from pathlib import Path
+
+    import torch
+
+    from .export import AbstractionResult, write_result
+    from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
+
+    convention = ChamferConvention()
+    points = torch.as_tensor(pc.points, dtype=cuboids.centers.dtype)[None]
+    chamfer = float(cuboid_chamfer_distance(
+        points, cuboids.centers, cuboids.quaternions, cuboids.half_sizes, cuboids.exists, convention,
+        torch.Generator().manual_seed(args.seed),
+    )[0])
+    names = args.part_names
+    part_labels = None
+    if pc.labels is not None and len(pc.labels) and pc.labels.min() >= 0:
+        num_parts = max(int(pc.labels.max()) + 1, len(names) if names else 0)
+        part_labels = transfer_part_labels(segmentation[None], torch.as_tensor(pc.labels)[None],
+                                           cuboids.num_cuboids, num_parts).numpy()
+    result = AbstractionResult(
+        cuboids, pc.center, pc.scale, pc.points, pc.normals, segmentation.numpy(), part_labels, names, chamfer,
+        convention, source=Path(args.shape).name, method=method,
+    )
+    bar.set_description("writing files")
+    written = write_result(args.out, result, Path(args.shape).stem, args.normalized, args.mesh_format)
+    bar.update(1)
+    bar.close()  # before the summary is printed (closing again on leaving the caller's "with" is harmless)
+    if not args.quiet:
+        used = int(cuboids.exists.sum())
+        how = convention.describe().split(": ", 1)[1]
+        print(f"{used} cuboid{'' if used == 1 else 's'} used of {cuboids.num_cuboids} | Chamfer distance "
+              f"{chamfer:.4g} ({how}; on the normalised shape) | {time.perf_counter() - start:.1f} s")
+        print("wrote " + ", ".join(str(p) for p in written.values()))
+    return 0
+
+
+def _add_fit_command(sub) -> None:
+    p = sub.add_parser(
+        "fit",
+        help="fit cuboids to one mesh or point cloud (no network needed)",
+        description="Fit M cuboids to one shape by gradient descent on the paper's losses (reconstruction "
+        "with the normal-aware distance, Eq. 4-5, and compactness, Eq. 6; cuboidlib.fitting), then keep the "
+        "cuboids that cover points. Reads any mesh (.obj .ply .off .stl .glb .gltf, sampled with --points "
+        "points) or point cloud (.ply .txt .pts .xyz .npy, normals estimated when missing). Writes "
+        "DIR/NAME.json (cuboids, see cuboidlib.export), DIR/NAME.glb (cuboids coloured by index) and "
+        "DIR/NAME_segmentation.ply (points coloured and labelled by cuboid), in the input's coordinates.",
+    )
+    p.add_argument("shape", metavar="SHAPE", help="a mesh or point cloud file")
+    _add_output_options(p, "NAME.json, NAME.glb and NAME_segmentation.ply")
+    p.add_argument("--cuboids", type=_positive_int, default=_FitDefault("num_cuboids"), metavar="M",
+                   help="cuboid slots; the fit decides how many are used (default: %(default)s)")
+    p.add_argument("--steps", type=_non_negative_int, default=_FitDefault("steps"),
+                   help="Adam steps (default: %(default)s)")
+    p.add_argument("--restarts", type=_positive_int, default=_FitDefault("restarts"), metavar="R",
+                   help="fit R times from different starts and keep the lowest loss (default: %(default)s)")
+    p.add_argument("--points", type=_positive_int, default=2048, metavar="N",
+                   help="points sampled on a mesh, or kept of a larger point cloud (default: 2048)")
+    _add_shape_options(p)
+    p.set_defaults(func=_cmd_fit)
+
+
+def _cmd_fit(args) -> int:
+    import time
+
+    start = time.perf_counter()
+    _check_out_dir(args.out)
+    _check_input(args.shape)
+
+    from tqdm import tqdm
+
+    from .fitting import FitConfig, fit_cuboids
+
+    for name in ("cuboids", "steps", "restarts"):
+        if isinstance(getattr(args, name), _FitDefault):
+            setattr(args, name, getattr(args, name).value())
+    pc = _load_shape(args.shape, args.points, args.seed)
+    _check_part_names(args, pc)
+    if len(pc) < args.cuboids:
+        raise UserError(f"{args.shape}: has {len(pc)} points, fewer than --cuboids {args.cuboids}")
+    config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
+    fit = fit_cuboids(pc.points, pc.normals, config, progress=not args.quiet)
+    method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": args.cuboids,
+              "steps": args.steps, "restarts": args.restarts, "seed": args.seed, "points": len(pc),
+              "converged": bool(fit.converged[0])}
+    with tqdm(total=1, desc="scoring", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
+        return _finish_result(args, fit.cuboids, pc, fit.labels[0].cpu(), method, start, bar)
+
+
+def _model_points(state: dict) -> int:
+    """Points per shape the checkpoint's network was trained with (2048 if it does not say)."""
+    value = state.get("config", {}).get("n_points")
+    return value if isinstance(value, int) and value > 0 else 2048
+
+
+def _add_abstract_command(sub) -> None:
+    p = sub.add_parser(
+        "abstract",
+        help="cuboids and segmentation of one shape by a trained network",
+        description="Run a trained network (z = mu) on one mesh or point cloud: M cuboids with existence "
+        "and the point-to-cuboid segmentation (Sec. 3). Same inputs and outputs as 'cuboidlib fit'. The shape "
+        "is normalised like the training shapes (bounding box centred, diagonal 1, +y up, facing +z).",
+    )
+    p.add_argument("shape", metavar="SHAPE", help="a mesh or point cloud file")
+    _add_model_options(p)
+    _add_output_options(p, "NAME.json, NAME.glb and NAME_segmentation.ply")
+    p.add_argument("--points", type=_positive_int, metavar="N",
+                   help="points sampled on a mesh, or kept of a larger point cloud (default: as in training)")
+    p.add_argument("--centers", choices=("auto", "predicted", "allocation"), default="auto",
+                   help="cuboid centres: the predicted translations, the allocation-weighted centroids of the "
+                   "points, or auto = what the network was trained with (default)")
+    _add_shape_options(p)
+    p.set_defaults(func=_cmd_abstract)
+
+
+def _cmd_abstract(args) -> int:
+    import time
+
+    from tqdm import tqdm
+
+    from .applications import abstract_shapes, load_trained_model
+    from .train import resolve_device
+
+    start = time.perf_counter()
+    _check_out_dir(args.out)
+    _check_input(args.shape)
+    model, state, path = load_trained_model(args.model, resolve_device(args.device))
+    pc = _load_shape(args.shape, args.points or _model_points(state), args.seed)
+    _check_part_names(args, pc)
+    if len(pc) <= model.config.k:
+        raise UserError(f"{args.shape}: has {len(pc)} points; the network needs more than k = {model.config.k}")
+    trained_centroids = bool(state["config"].get("loss", {}).get("centers_from_allocation", False))
+    centroids = trained_centroids if args.centers == "auto" else args.centers == "allocation"
+    method = {"name": "network", "checkpoint": str(path), "step": state.get("step"), "threshold": args.threshold,
+              "centers": "allocation" if centroids else "predicted", "points": len(pc)}
+    with tqdm(total=2, desc="running the network", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
+        out = abstract_shapes(model, pc.points, args.threshold, centers_from_allocation=centroids)
+        bar.update(1)
+        return _finish_result(args, out.cuboids.to(device="cpu"), pc, out.labels[0].cpu(), method, start, bar)
+
+
+def _stems(prefix: str, count: int) -> list[str]:
+    width = max(2, len(str(count - 1)))
+    return [f"{prefix}_{i:0{width}d}" for i in range(count)]
+
+
+def _write_decoded(args, decoded, stems: list[str], methods: list[dict]) -> list:
+    """Write every decoded shape (normalised frame, no points) as JSON and meshes; returns the paths."""
+    from tqdm import tqdm
+
+    from .export import AbstractionResult, write_result
+
+    cuboids = decoded.cuboids.to(device="cpu")
+    written = []
+    for k in tqdm(range(len(stems)), desc="writing shapes", disable=args.quiet, leave=False, delay=_BAR_DELAY):
+        one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
+                            cuboids.exists[k:k + 1], validate=False)
+        result = AbstractionResult(one, method=methods[k])
+        written += list(write_result(args.out, result, stems[k], True, args.mesh_format).values())
+    return written
+
+
+def _add_generate_command(sub) -> None:
+    p = sub.add_parser(
+        "generate",
+        help="new shapes from a trained network: decode z ~ N(0, I) (Fig. 12)",
+        description="Shape generation (Sec. 4.4): draw latent codes z ~ N(0, I) and decode each into cuboids "
+        "with existence. Writes DIR/generated_XX.json and its meshes in the normalised frame (there is no "
+        "input shape); 'cuboidlib view DIR' shows them all.",
+    )
+    _add_model_options(p)
+    _add_output_options(p, "generated_XX.json and generated_XX.glb")
+    p.add_argument("--count", type=_positive_int, default=8, help="shapes to generate (default: 8)")
+    p.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the latent codes (default: 0)")
+    p.set_defaults(func=_cmd_generate)
+
+
+def _cmd_generate(args) -> int:
+    import time
+
+    import torch
+
+    from .applications import generate_shapes, load_trained_model
+    from .train import resolve_device
+
+    start = time.perf_counter()
+    _check_out_dir(args.out)
+    model, state, path = load_trained_model(args.model, resolve_device(args.device))
+    decoded = generate_shapes(model, args.count, torch.Generator().manual_seed(args.seed), args.threshold)
+    methods = [{"name": "generate", "checkpoint": str(path), "seed": args.seed, "sample": k,
+                "threshold": args.threshold} for k in range(args.count)]
+    written = _write_decoded(args, decoded, _stems("generated", args.count), methods)
+    if not args.quiet:
+        used = decoded.num_existing().tolist()
+        print(f"{args.count} shapes generated | cuboids used: {' '.join(map(str, used))} of "
+              f"{decoded.cuboids.num_cuboids} | {time.perf_counter() - start:.1f} s")
+        print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
+    return 0
+
+
+def _add_interpolate_command(sub) -> None:
+    p = sub.add_parser(
+        "interpolate",
+        help="interpolate between two shapes in the latent space of a trained network (Fig. 13)",
+        description="Shape interpolation (Sec. 4.4): encode both shapes, interpolate their latent means "
+        "linearly, decode every step. Prints how smooth the path is: the largest distance any point of an "
+        "existing cuboid moves between neighbouring steps (normalised frame, shape diagonal 1) and how many "
+        "cuboids appear or disappear. Writes DIR/step_XX.json and meshes in the normalised frame.",
+    )
+    p.add_argument("shape_a", metavar="SHAPE_A", help="the first shape (mesh or point cloud)")
+    p.add_argument("shape_b", metavar="SHAPE_B", help="the last shape (mesh or point cloud)")
+    _add_model_options(p)
+    _add_output_options(p, "step_XX.json and step_XX.glb")
+    p.add_argument("--steps", type=_positive_int, default=8, help="shapes along the path, ends included (default: 8)")
+    p.add_argument("--points", type=_positive_int, metavar="N",
+                   help="points sampled on a mesh, or kept of a larger point cloud (default: as in training)")
+    p.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the point sampling (default: 0)")
+    p.set_defaults(func=_cmd_interpolate)
+
+
+def _cmd_interpolate(args) -> int:
+    import time
+    from pathlib import Path
+
+    from .applications import interpolate_latents, load_trained_model
+    from .train import resolve_device
+
+    start = time.perf_counter()
+    if args.steps < 2:
+        raise UserError(f"--steps must be at least 2 (the two ends), got {args.steps}")
+    _check_out_dir(args.out)
+    _check_input(args.shape_a)
+    _check_input(args.shape_b)
+    model, state, path = load_trained_model(args.model, resolve_device(args.device))
+    n_points = args.points or _model_points(state)
+    clouds = [_load_shape(shape, n_points, args.seed) for shape in (args.shape_a, args.shape_b)]
+    for shape, pc in zip((args.shape_a, args.shape_b), clouds):
+        if len(pc) <= model.config.k:
+            raise UserError(f"{shape}: has {len(pc)} points; the network needs more than k = {model.config.k}")
+    interp = interpolate_latents(model, clouds[0].points, clouds[1].points, args.steps, args.threshold)
+    names = (Path(args.shape_a).name, Path(args.shape_b).name)
+    methods = [{"name": "interpolate", "checkpoint": str(path), "from": names[0], "to": names[1], "t": float(t),
+                "threshold": args.threshold} for t in interp.t]
+    written = _write_decoded(args, interp.shapes, _stems("step", args.steps), methods)
+    if not args.quiet:
+        print(f"{args.steps} steps from {names[0]} to {names[1]} | largest move of an existing cuboid between "
+              f"neighbouring steps {interp.max_step_change:.4g} ({interp.evenness:.2f} x the mean step; shape "
+              f"diagonal 1) | {int(interp.existence_changes.sum())} cuboid(s) appear or disappear | "
+              f"{time.perf_counter() - start:.1f} s")
+        print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
+    return 0
+
+
+def _add_view_command(sub) -> None:
+    p = sub.add_parser(
+        "view",
+        help="a self-contained HTML page of results (opens in any browser, no server)",
+        description="Draw a result folder (or one result JSON) written by fit, abstract, generate or "
+        "interpolate: the points coloured by cuboid and the translucent cuboids, interactive (plotly). "
+        "plotly.js is embedded in the page (about 5 MB), so it opens offline in any browser.",
+    )
+    p.add_argument("result", metavar="RESULT", help="a result folder or a result .json file")
+    p.add_argument("--out", metavar="FILE", help="the HTML file (default: RESULT/view.html)")
+    p.add_argument("--max-points", type=_positive_int, default=4000,
+                   help="points drawn in all (evenly spaced subset; default: 4000)")
+    p.add_argument("--quiet", action="store_true", help="no messages")
+    p.set_defaults(func=_cmd_view)
+
+
+def _cmd_view(args) -> int:
+    from .export import write_view_html
+
+    out = write_view_html(args.result, args.out, max_points=args.max_points)
+    if not args.quiet:
+        print(f"wrote {out} (open it in any browser; plotly.js is embedded, no server or internet needed)")
+    return 0
+
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,14 +678,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UserError, ValueError, FileNotFoundError, OSError) as exc:
-        if args.traceback:
-            raise
-        print(f"cuboidlib {args.command}: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print(f"cuboidlib {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - every error becomes one readable line unless --traceback
+        if args.traceback:
+            raise
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        if isinstance(exc, (UserError, ValueError, OSError, FloatingPointError)):
+            print(f"cuboidlib {args.command}: error: {message}", file=sys.stderr)
+            return 2
+        print(f"cuboidlib {args.command}: error: {type(exc).__name__}: {message} "
+              "(unexpected; rerun with --traceback for the details)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,168 @@
+"""Time one training step of CuboidAbstractionNet on the CPU and measure its peak memory.
+
+A step is: forward, loss, backward, Adam update. Every configuration (points per cloud x variant)
+runs in a fresh Python subprocess, so that its peak resident memory (ru_maxrss) is its own.
+After ``--warmup`` steps, the median of ``--repeats`` steps is reported.
+
+The loss is a stand-in for the training loss that touches every output the real one uses: the
+paper's point-to-cuboid distance weighted by W (Eq. (4)-(5)), the compactness loss of the portions
+w (Eq. (6)), BCE of the existence logits against w > 0.05 (Eq. (7)) and the KL term (Eq. (8)),
+with the paper's weights. The inputs are random points on a sphere with their normals (the timing
+does not depend on the shapes).
+
+``--variant fast reference`` compares the chunked EdgeConv / global layer with the straightforward
+``reference_forward`` versions (same results). ``--profile`` prints a torch.profiler table of one
+step per configuration.
+
+Example::
+
+    python benchmarks/bench_model.py --batch 32 --points 1024 4096 --repeats 7
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import torch
+import torch.nn.functional as F
+
+from cuboidlib.distance import point_to_cuboid_distance
+from cuboidlib.losses import allocation_portions, compactness_loss
+from cuboidlib.model import CuboidAbstractionNet, EdgeConv, ModelConfig
+
+LOSS_DESCRIPTION = (
+    "stand-in loss: sum_m W*d (paper's sampled point-to-cuboid distance) + 0.1 compactness"
+    " + 0.01 BCE(exist, w > 0.05) + 6e-6 KL"
+)
+
+
+def stand_in_loss(out, points: torch.Tensor, normals: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """Weighted sum of the paper's four loss terms, computed from the model output (see module doc)."""
+    d = point_to_cuboid_distance(
+        points, normals, out.centers, out.quaternions, out.half_sizes, generator=generator, validate=False
+    )
+    recon = (out.W * d).sum(-1).mean()
+    w = allocation_portions(out.W)
+    compact = compactness_loss(w).mean()
+    exist = F.binary_cross_entropy_with_logits(out.exist_logits, (w > 0.05).to(w.dtype).detach())
+    kl = (-0.5 * (1 + out.logvar - out.mu**2 - out.logvar.exp()).sum(-1)).mean()
+    return recon + 0.1 * compact + 0.01 * exist + 6e-6 * kl
+
+
+def run_worker(spec: dict) -> dict:
+    """One configuration: build the model, warm up, time ``repeats`` steps; returns the figures."""
+    if spec["threads"]:
+        torch.set_num_threads(spec["threads"])
+    torch.manual_seed(0)
+    config = ModelConfig(num_cuboids=spec["cuboids"]) if spec["config"] == "paper" else ModelConfig.small(
+        num_cuboids=spec["cuboids"]
+    )
+    model = CuboidAbstractionNet(config).train()
+    if spec["edges_per_chunk"]:
+        for module in model.modules():
+            if isinstance(module, EdgeConv):
+                module.edges_per_chunk = spec["edges_per_chunk"]
+    optimizer = torch.optim.Adam(model.parameters(), lr=6e-4)
+    gen = torch.Generator().manual_seed(0)
+    normals = F.normalize(torch.randn(spec["batch"], spec["points"], 3, generator=gen), dim=-1)
+    points = 0.8 * normals
+    reference = spec["variant"] == "reference"
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+    def step() -> tuple[float, float]:
+        start, start_cpu = time.perf_counter(), time.process_time()
+        optimizer.zero_grad(set_to_none=True)
+        out = model(points, reference=reference)
+        loss = stand_in_loss(out, points, normals, gen)
+        loss.backward()
+        optimizer.step()
+        return time.perf_counter() - start, time.process_time() - start_cpu
+
+    for _ in range(spec["warmup"]):
+        step()
+    times, cpu_times = zip(*(step() for _ in range(spec["repeats"])))
+    result = {
+        "median_s": statistics.median(times),
+        "min_s": min(times),
+        "cpu_s": statistics.median(cpu_times),
+        "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "setup_mib": rss_before / 1024,
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "threads": torch.get_num_threads(),
+    }
+    if spec["profile"]:
+        from torch.profiler import ProfilerActivity, profile
+
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            step()
+        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25), file=sys.stderr)
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--points", type=int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--cuboids", type=int, default=16)
+    parser.add_argument("--repeats", type=int, default=7, help="timed steps per configuration (median reported)")
+    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--variant", nargs="+", choices=["fast", "reference"], default=["fast"])
+    parser.add_argument("--config", choices=["paper", "small"], default="paper", help="ModelConfig() or .small()")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--edges-per-chunk", type=int, default=0, help="EdgeConv chunk size (0: the default)")
+    parser.add_argument("--profile", action="store_true", help="print a torch.profiler table per configuration")
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+
+    if args.worker:
+        print(json.dumps(run_worker(json.loads(args.worker))))
+        return 0
+
+    print(f"CuboidAbstractionNet training step (forward + loss + backward + Adam), {args.config} config, CPU")
+    print(LOSS_DESCRIPTION)
+    print(f"batch {args.batch}, M = {args.cuboids}, median of {args.repeats} steps after {args.warmup} warm-up")
+    print("median/min s: elapsed time per step; cpu s: CPU time per step summed over threads")
+    print(
+        f"{'points':>7} {'variant':>10} {'median s':>9} {'min s':>7} {'cpu s':>7} {'peak MiB':>9} {'params':>10} "
+        f"{'threads':>7}"
+    )
+    failed = False
+    for n in args.points:
+        for variant in args.variant:
+            spec = dict(
+                batch=args.batch,
+                points=n,
+                cuboids=args.cuboids,
+                repeats=args.repeats,
+                warmup=args.warmup,
+                variant=variant,
+                config=args.config,
+                threads=args.threads,
+                edges_per_chunk=args.edges_per_chunk,
+                profile=args.profile,
+            )
+            proc = subprocess.run(
+                [sys.executable, __file__, "--worker", json.dumps(spec)], capture_output=True, text=True
+            )
+            if args.profile:
+                print(proc.stderr)
+            if proc.returncode != 0:
+                failed = True
+                print(f"{n:>7} {variant:>10}   failed: {proc.stderr.strip().splitlines()[-1:]}")
+                continue
+            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            print(
+                f"{n:>7} {variant:>10} {r['median_s']:>9.3f} {r['min_s']:>7.3f} {r['cpu_s']:>7.3f} "
+                f"{r['peak_mib']:>9.0f} {r['parameters']:>10,} {r['threads']:>7}"
+            )
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

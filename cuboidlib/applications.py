@@ -1,0 +1,523 @@
+"""Applications of a trained network (Sec. 4.4): generation, interpolation, structural clustering.
+
+The network is a variational auto-encoder over cuboid structures (Sec. 3.1-3.2): ``encode`` maps a
+point cloud to the mean mu and log-variance of q(z | points), ``decode`` maps a latent code z to M
+cuboids with existence probabilities. Everything here uses those two maps in evaluation mode
+(BatchNorm with its running statistics, no gradients):
+
+* **Shape generation** (Fig. 12): :func:`generate_shapes` samples z ~ N(0, I) and decodes it.
+* **Shape interpolation** (Fig. 13): :func:`interpolate_latents` encodes two shapes, interpolates
+  their latent means linearly, z_t = (1 - t) mu_a + t mu_b, and decodes every step;
+  :func:`cuboid_step_changes` measures how far any existing cuboid moves between neighbouring
+  steps, so a lesson can show that the path is smooth (halving the step size halves the moves).
+* **Structural clustering** (Fig. 14): :func:`cluster_by_existence` puts shapes with identical
+  existence vectors in one group, :func:`existence_groups` lists each group's shared cuboid indices
+  (the paper's caption "[5,7,10,12,14]"), and :func:`purity` / :func:`adjusted_rand_index` score a
+  grouping against known structure types (those of the procedural collections, ``structure_ids``).
+* **Abstraction** of given point clouds (the network's ordinary use, for the command-line tool):
+  :func:`abstract_shapes`.
+
+Existence: a decoded cuboid exists when its existence probability exceeds ``threshold`` (0.5, as
+in the evaluation, :mod:`cuboidlib.evaluation`); a shape with no such cuboid keeps its most
+probable one (:func:`existence_mask`), so every decoded shape has at least one cuboid.
+
+Decoded cuboids are in the normalised coordinates the network was trained in (bounding box
+centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`). Generation and interpolation
+use the predicted translations; a network trained with the authors' centroid centres
+(``LossConfig(centers_from_allocation=True)``) never trained its translation head, so its
+generated shapes are not meaningful (abstraction of a point cloud can use the centroids instead).
+
+**Trained checkpoints by name.** :func:`resolve_checkpoint` accepts a checkpoint file, a training
+run folder (its ``best.pt``) or the name of a committed checkpoint: ``chair`` means
+``data_samples/checkpoints/chair.pt`` (one file per category, written by ``cuboidlib train``).
+The folder can be moved with the environment variable ``CUBOIDLIB_CHECKPOINTS``
+(:func:`checkpoint_dir`); :func:`committed_checkpoints` lists what is there.
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, NamedTuple
+
+import numpy as np
+import torch
+
+from ._checks import as_float_tensor, check_finite, check_shape
+from .checkpoint import load_model
+from .geometry import Cuboids
+from .losses import allocation_weighted_centers
+from .model import CuboidAbstractionNet
+
+__all__ = [
+    "DecodedShapes",
+    "existence_mask",
+    "decode_latents",
+    "generate_shapes",
+    "encode_shapes",
+    "abstract_shapes",
+    "cuboid_step_changes",
+    "Interpolation",
+    "interpolate_codes",
+    "interpolate_latents",
+    "cluster_by_existence",
+    "ExistenceGroup",
+    "existence_groups",
+    "purity",
+    "adjusted_rand_index",
+    "CHECKPOINT_DIR_ENV",
+    "checkpoint_dir",
+    "committed_checkpoints",
+    "resolve_checkpoint",
+    "load_trained_model",
+]
+
+#: Environment variable that overrides the folder of committed checkpoints.
+CHECKPOINT_DIR_ENV = "CUBOIDLIB_CHECKPOINTS"
+
+
+# ----------------------------------------------------------------------------------------------
+# Decoding
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class DecodedShapes:
+    """Cuboids decoded by the network for B shapes (normalised coordinates).
+
+    cuboids: :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) whose ``exists`` (B, M) is
+      :func:`existence_mask` of the probabilities.
+    exist_probs: (B, M) existence probabilities delta_m = sigmoid(logit).
+    z: (B, latent_dim) the latent codes that were decoded.
+    labels: (B, N) long, each input point's cuboid (argmax of the allocation W over the EXISTING
+      cuboids), or None when no points were given (generation, interpolation).
+    W: (B, N, M) the allocation of the input points (Eq. 3), or None.
+    """
+
+    cuboids: Cuboids
+    exist_probs: torch.Tensor
+    z: torch.Tensor
+    labels: torch.Tensor | None = None
+    W: torch.Tensor | None = None
+
+    def __len__(self) -> int:
+        return self.cuboids.batch_size
+
+    def num_existing(self) -> torch.Tensor:
+        """(B,) long, the number of existing cuboids of every shape."""
+        return self.cuboids.exists.sum(dim=1)
+
+
+def _concatenate(parts: list[DecodedShapes]) -> DecodedShapes:
+    """The shapes of several :class:`DecodedShapes` in one (labels and W kept only if all have them)."""
+    cat = lambda get: torch.cat([get(d) for d in parts])  # noqa: E731
+    cuboids = Cuboids(cat(lambda d: d.cuboids.centers), cat(lambda d: d.cuboids.quaternions),
+                      cat(lambda d: d.cuboids.half_sizes), cat(lambda d: d.cuboids.exists), validate=False)
+    with_points = all(d.labels is not None for d in parts)
+    return DecodedShapes(cuboids, cat(lambda d: d.exist_probs), cat(lambda d: d.z),
+                         cat(lambda d: d.labels) if with_points else None, cat(lambda d: d.W) if with_points else None)
+
+
+def existence_mask(exist_probs: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
+    """Existing cuboids from existence probabilities: p > threshold, at least one per shape.
+
+    exist_probs: (B, M) in [0, 1]. Returns a (B, M) bool mask; in a shape where no probability
+    exceeds ``threshold`` only its most probable cuboid is marked (the rule of
+    :func:`cuboidlib.evaluation.predict_cuboids`).
+    """
+    probs = as_float_tensor(exist_probs, "exist_probs")
+    check_shape(probs, ("B", "M"), "exist_probs")
+    if not 0 <= threshold < 1:
+        raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
+    exists = probs > threshold
+    empty = ~exists.any(dim=1)
+    exists[empty, probs[empty].argmax(dim=1)] = True
+    return exists
+
+
+@contextmanager
+def _evaluating(model: CuboidAbstractionNet) -> Iterator[None]:
+    """Evaluation mode without gradients; the model's previous mode is restored afterwards."""
+    if not isinstance(model, CuboidAbstractionNet):
+        raise TypeError(f"model must be a CuboidAbstractionNet, got {type(model).__name__}")
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            yield
+    finally:
+        model.train(was_training)
+
+
+def decode_latents(model: CuboidAbstractionNet, z, threshold: float = 0.5) -> DecodedShapes:
+    """Decode latent codes z (B, latent_dim) into cuboids with existence (Sec. 3.2).
+
+    Returns :class:`DecodedShapes` (labels and W are None). Deterministic: the same z gives the same
+    cuboids.
+    """
+    with _evaluating(model):
+        pred = model.decode(z)
+        z = as_float_tensor(z, "z").to(pred.centers)
+        probs = pred.exist_probs
+        exists = existence_mask(probs, threshold)
+        cuboids = Cuboids(pred.centers, pred.quaternions, pred.half_sizes, exists)
+    return DecodedShapes(cuboids, probs, z)
+
+
+def generate_shapes(
+    model: CuboidAbstractionNet,
+    n_shapes: int,
+    generator: torch.Generator | None = None,
+    threshold: float = 0.5,
+) -> DecodedShapes:
+    """Shape generation (Sec. 4.4, Fig. 12): decode ``n_shapes`` codes z ~ N(0, I).
+
+    The codes are drawn on the CPU from ``generator`` (repeatable with a seeded generator) and
+    moved to the model's device. Returns :class:`DecodedShapes` with B = n_shapes.
+    """
+    if isinstance(n_shapes, bool) or not isinstance(n_shapes, int) or n_shapes < 1:
+        raise ValueError(f"n_shapes must be a positive integer, got {n_shapes!r}")
+    z = torch.randn(n_shapes, model.config.latent_dim, generator=generator)
+    return decode_latents(model, z, threshold)
+
+
+def _as_batch(points, name: str) -> torch.Tensor:
+    p = as_float_tensor(np.asarray(points) if not isinstance(points, torch.Tensor) else points, name)
+    if p.dim() == 2:
+        p = p[None]
+    check_shape(p, ("B", "N", 3), f"{name} (or (N, 3) for one shape)")
+    return p
+
+
+def encode_shapes(model: CuboidAbstractionNet, points) -> torch.Tensor:
+    """Latent means mu (B, latent_dim) of point clouds (B, N, 3) or one cloud (N, 3) (Sec. 3.1).
+
+    The points must be normalised like the training shapes (:mod:`cuboidlib.normalization`).
+    """
+    with _evaluating(model):
+        mu, _ = model.encode(_as_batch(points, "points"))
+    return mu
+
+
+def abstract_shapes(
+    model: CuboidAbstractionNet,
+    points,
+    threshold: float = 0.5,
+    centers_from_allocation: bool = False,
+    batch_size: int = 32,
+) -> DecodedShapes:
+    """Cuboid abstraction and segmentation of point clouds by the network (z = mu, Sec. 3).
+
+    points: (B, N, 3) or (N, 3), normalised like the training shapes, run ``batch_size`` shapes at a
+    time (evaluation mode: the result does not depend on the batching). ``centers_from_allocation``
+    places every cuboid at the allocation-weighted centroid of its points
+    (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained that way.
+    Returns :class:`DecodedShapes` with labels (B, N) (argmax of W over the existing cuboids) and W.
+    The existence vectors ``cuboids.exists`` of a collection are what :func:`cluster_by_existence` groups.
+    """
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    p = _as_batch(points, "points").to(next(model.parameters()))
+    if p.shape[0] > batch_size:
+        return _concatenate([abstract_shapes(model, chunk, threshold, centers_from_allocation, batch_size)
+                             for chunk in p.split(batch_size)])
+    with _evaluating(model):
+        out = model(p, sample_latent=False)
+        probs = out.exist_probs
+        exists = existence_mask(probs, threshold)
+        centers = allocation_weighted_centers(out.W, p) if centers_from_allocation else out.centers
+        cuboids = Cuboids(centers, out.quaternions, out.half_sizes, exists)
+        labels = out.W.masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1)
+    return DecodedShapes(cuboids, probs, out.z, labels, out.W)
+
+
+# ----------------------------------------------------------------------------------------------
+# Interpolation
+# ----------------------------------------------------------------------------------------------
+
+
+def cuboid_step_changes(cuboids: Cuboids) -> tuple[torch.Tensor, torch.Tensor]:
+    """How much the cuboids change between neighbouring shapes of a sequence (K shapes, M cuboids).
+
+    For neighbours k and k + 1 and every cuboid m that exists in both, the change is the largest
+    distance one of its 8 corners moves, max_c |corner_c(k + 1) - corner_c(k)|. The map between the
+    two boxes is affine in the unit-cube coordinates and the norm of the displacement is convex, so
+    this is the largest distance ANY point of the cuboid moves: it combines centre, rotation and
+    size in one number in the shape's units (a normalised shape has diagonal 1).
+
+    Returns ``(step_change (K - 1,), existence_changes (K - 1,) long)``: the largest change over
+    the cuboids that exist in both neighbours (0 if none does), and the number of cuboids that
+    appear or disappear between them.
+    """
+    if not isinstance(cuboids, Cuboids):
+        raise TypeError(f"cuboids must be a Cuboids sequence (K shapes), got {type(cuboids).__name__}")
+    if cuboids.batch_size < 2:
+        raise ValueError(f"a sequence of at least 2 shapes is needed, got {cuboids.batch_size}")
+    corners = cuboids.corners()  # (K, M, 8, 3)
+    moves = (corners[1:] - corners[:-1]).norm(dim=-1).amax(dim=-1)  # (K - 1, M)
+    exists = cuboids.existing()
+    both = exists[1:] & exists[:-1]
+    step_change = torch.where(both, moves, torch.zeros_like(moves)).amax(dim=-1)
+    return step_change, (exists[1:] != exists[:-1]).sum(dim=-1)
+
+
+@dataclass
+class Interpolation:
+    """A decoded interpolation path of K steps (Sec. 4.4, Fig. 13).
+
+    t: (K,) interpolation weights from 0 to 1; shapes: :class:`DecodedShapes` (K, M) with
+    ``shapes.z[k] = (1 - t_k) z_a + t_k z_b``; step_change (K - 1,) and existence_changes (K - 1,)
+    from :func:`cuboid_step_changes`.
+    """
+
+    t: torch.Tensor
+    shapes: DecodedShapes
+    step_change: torch.Tensor
+    existence_changes: torch.Tensor
+
+    @property
+    def max_step_change(self) -> float:
+        """The largest distance any point of an existing cuboid moves between neighbouring steps."""
+        return float(self.step_change.max())
+
+    @property
+    def evenness(self) -> float:
+        """Largest step change over the mean step change: 1 when every step moves the cuboids equally
+        far, large when the path jumps somewhere (inf if no cuboid moves at all)."""
+        mean = float(self.step_change.mean())
+        return self.max_step_change / mean if mean > 0 else float("inf")
+
+
+def interpolate_codes(
+    model: CuboidAbstractionNet, z_a, z_b, steps: int = 8, threshold: float = 0.5
+) -> Interpolation:
+    """Decode the straight line between two latent codes z_a, z_b (latent_dim,) in ``steps`` steps.
+
+    z_k = (1 - t_k) z_a + t_k z_b with t_k = k / (steps - 1), so z_0 = z_a and z_{K-1} = z_b
+    exactly. Each step is decoded on its own (a batch of one), so step 0 is bitwise
+    ``decode_latents(model, z_a[None])`` and the last step bitwise the decoding of z_b.
+    """
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 2:
+        raise ValueError(f"steps must be an integer >= 2, got {steps!r}")
+    codes = []
+    for name, z in (("z_a", z_a), ("z_b", z_b)):
+        z = as_float_tensor(z, name)
+        if z.dim() == 2 and z.shape[0] == 1:
+            z = z[0]
+        check_shape(z, (model.config.latent_dim,), name)
+        check_finite(z, name)
+        codes.append(z)
+    z_a, z_b = codes
+    t = torch.linspace(0.0, 1.0, steps, dtype=z_a.dtype)
+    t[0], t[-1] = 0.0, 1.0
+    shapes = _concatenate([decode_latents(model, ((1 - tk) * z_a + tk * z_b)[None], threshold) for tk in t])
+    step_change, flips = cuboid_step_changes(shapes.cuboids)
+    return Interpolation(t, shapes, step_change, flips)
+
+
+def interpolate_latents(
+    model: CuboidAbstractionNet, points_a, points_b, steps: int = 8, threshold: float = 0.5
+) -> Interpolation:
+    """Shape interpolation (Sec. 4.4, Fig. 13): encode two point clouds, interpolate their means.
+
+    points_a, points_b: (N, 3) each (the two may have different N), normalised. mu_a and mu_b are
+    encoded one shape at a time, then :func:`interpolate_codes` decodes the line between them: the
+    first step equals ``decode_latents(model, mu_a)`` and the last ``decode_latents(model, mu_b)``.
+    """
+    mu_a = encode_shapes(model, _single(points_a, "points_a"))
+    mu_b = encode_shapes(model, _single(points_b, "points_b"))
+    return interpolate_codes(model, mu_a[0], mu_b[0], steps, threshold)
+
+
+def _single(points, name: str) -> torch.Tensor:
+    p = _as_batch(points, name)
+    if p.shape[0] != 1:
+        raise ValueError(f"{name} must be ONE point cloud (N, 3), got a batch of {p.shape[0]}")
+    return p
+
+
+# ----------------------------------------------------------------------------------------------
+# Structural clustering
+# ----------------------------------------------------------------------------------------------
+
+
+def _as_labels(x, name: str) -> torch.Tensor:
+    t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))
+    if t.dim() != 1 or t.numel() == 0:
+        raise ValueError(f"{name} must be a non-empty 1-D sequence of labels, got shape {tuple(t.shape)}")
+    if t.dtype.is_floating_point or t.dtype.is_complex or t.dtype == torch.bool:
+        raise ValueError(f"{name} must hold integer labels, got dtype {t.dtype}")
+    return t.long().cpu()
+
+
+def cluster_by_existence(exists) -> torch.Tensor:
+    """Structural clustering (Sec. 4.4, Fig. 14): shapes with identical existence vectors form a group.
+
+    exists: (S, M) bool (or 0/1 integers), the existing cuboids of S shapes decoded by one network
+    (cuboid m means the same part in every shape). Returns (S,) long group ids: 0 is the largest
+    group, then by decreasing size; groups of equal size are numbered in the order their first
+    shape appears.
+    """
+    e = exists if isinstance(exists, torch.Tensor) else torch.as_tensor(np.asarray(exists))
+    if e.dtype.is_floating_point:
+        raise ValueError("exists must be a boolean (S, M) mask; threshold probabilities first (p > 0.5)")
+    if e.dim() != 2 or e.shape[0] == 0:
+        raise ValueError(f"exists must have shape (S, M) with S >= 1, got {tuple(e.shape)}")
+    if e.dtype != torch.bool:
+        if ((e != 0) & (e != 1)).any():
+            raise ValueError("exists must hold booleans or 0/1 integers")
+        e = e != 0
+    _, inverse, counts = torch.unique(e.cpu().to(torch.uint8), dim=0, return_inverse=True, return_counts=True)
+    s = e.shape[0]
+    first = torch.full((len(counts),), s, dtype=torch.long).scatter_reduce(
+        0, inverse, torch.arange(s), reduce="amin"
+    )
+    order = torch.argsort(-counts * (s + 1) + first)  # larger groups first, then first appearance
+    rank = torch.empty_like(order)
+    rank[order] = torch.arange(len(order))
+    return rank[inverse]
+
+
+class ExistenceGroup(NamedTuple):
+    """One structural group: its id, size, the existing cuboid indices shared by all its shapes
+    (like the paper's "[5,7,10,12,14]") and the indices of its shapes."""
+
+    cluster: int
+    size: int
+    cuboids: list[int]
+    members: list[int]
+
+
+def existence_groups(exists, clusters=None) -> list[ExistenceGroup]:
+    """Summaries of the groups of :func:`cluster_by_existence`, ordered by group id.
+
+    exists: (S, M) bool; clusters: (S,) group ids (default: ``cluster_by_existence(exists)``).
+    ``cuboids`` lists the cuboids that exist in EVERY shape of the group (for existence-vector
+    groups, exactly the shared vector).
+    """
+    e = exists if isinstance(exists, torch.Tensor) else torch.as_tensor(np.asarray(exists))
+    ids = cluster_by_existence(e) if clusters is None else _as_labels(clusters, "clusters")
+    e = e.cpu() != 0
+    if e.dim() != 2 or ids.shape[0] != e.shape[0]:
+        raise ValueError(f"clusters has {ids.shape[0]} entries for exists of shape {tuple(e.shape)}")
+    groups = []
+    for g in torch.unique(ids).tolist():
+        members = torch.nonzero(ids == g)[:, 0]
+        shared = e[members].all(dim=0)
+        groups.append(ExistenceGroup(int(g), len(members), torch.nonzero(shared)[:, 0].tolist(), members.tolist()))
+    return groups
+
+
+def _contingency(a, b) -> torch.Tensor:
+    """Contingency table n_ij = |{s : a_s = i-th value of a, b_s = j-th value of b}| (float64)."""
+    a, b = _as_labels(a, "clusters"), _as_labels(b, "truth")
+    if a.shape != b.shape:
+        raise ValueError(f"clusters ({a.shape[0]} shapes) and truth ({b.shape[0]} shapes) must have the same length")
+    _, ia = torch.unique(a, return_inverse=True)
+    _, ib = torch.unique(b, return_inverse=True)
+    rows, cols = int(ia.max()) + 1, int(ib.max()) + 1
+    table = torch.zeros(rows * cols, dtype=torch.float64)
+    table.index_add_(0, ia * cols + ib, torch.ones(len(a), dtype=torch.float64))
+    return table.view(rows, cols)
+
+
+def purity(clusters, truth) -> float:
+    """Purity of a grouping: the fraction of shapes whose group's most common true type is their own.
+
+    purity = (1 / S) sum_k max_j |C_k and T_j| for groups C_k and true types T_j. 1 when every group
+    holds one type only (also when every shape is its own group: read it with the ARI).
+    clusters, truth: (S,) integer labels of any values.
+    """
+    table = _contingency(clusters, truth)
+    return float(table.amax(dim=1).sum() / table.sum())
+
+
+def adjusted_rand_index(clusters, truth) -> float:
+    """Adjusted Rand index (Hubert and Arabie, 1985) between a grouping and the true types.
+
+    With the contingency table n_ij, row sums a_i, column sums b_j and C(x) = x (x - 1) / 2:
+
+        index = sum_ij C(n_ij),  expected = sum_i C(a_i) sum_j C(b_j) / C(S),
+        maximum = (sum_i C(a_i) + sum_j C(b_j)) / 2,
+        ARI = (index - expected) / (maximum - expected).
+
+    1 for identical partitions (up to renaming), about 0 for a random grouping, negative when worse
+    than chance. When maximum = expected (both partitions put all shapes in one group, or both put
+    every shape in its own group, or S = 1) the partitions are identical and 1 is returned.
+    """
+    table = _contingency(clusters, truth)
+    pairs = lambda x: (x * (x - 1) / 2).sum()  # noqa: E731
+    n = table.sum()
+    index = pairs(table)
+    sum_a, sum_b = pairs(table.sum(dim=1)), pairs(table.sum(dim=0))
+    total = n * (n - 1) / 2
+    expected = sum_a * sum_b / total if total > 0 else torch.tensor(0.0, dtype=torch.float64)
+    maximum = (sum_a + sum_b) / 2
+    if maximum == expected:
+        return 1.0
+    return float((index - expected) / (maximum - expected))
+
+
+# ----------------------------------------------------------------------------------------------
+# Trained checkpoints by name
+# ----------------------------------------------------------------------------------------------
+
+
+def checkpoint_dir() -> Path:
+    """The folder of committed checkpoints: ``$CUBOIDLIB_CHECKPOINTS`` if set, else the
+    ``data_samples/checkpoints`` folder of the source tree cuboidlib runs from."""
+    env = os.environ.get(CHECKPOINT_DIR_ENV)
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parent.parent / "data_samples" / "checkpoints"
+
+
+def committed_checkpoints() -> dict[str, Path]:
+    """Committed checkpoints by name: ``{"chair": .../chair.pt, ...}`` (empty if there are none)."""
+    folder = checkpoint_dir()
+    if not folder.is_dir():
+        return {}
+    return {p.stem: p for p in sorted(folder.glob("*.pt")) if p.is_file()}
+
+
+def resolve_checkpoint(name_or_path: str | os.PathLike) -> Path:
+    """The checkpoint file meant by ``name_or_path``, in this order:
+
+    1. an existing file: itself;
+    2. a folder: its ``best.pt`` (a ``cuboidlib train`` run folder), else its ``last.pt``;
+    3. a bare name (no folder, no suffix) of a committed checkpoint, e.g. ``"chair"``:
+       ``checkpoint_dir() / "chair.pt"``.
+
+    Raises ``FileNotFoundError`` naming what was looked for and the committed names available.
+    """
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    if path.is_dir():
+        for name in ("best.pt", "last.pt"):
+            if (path / name).is_file():
+                return path / name
+        raise FileNotFoundError(f"{path}: a folder without best.pt or last.pt (not a training run folder)")
+    available = committed_checkpoints()
+    text = str(name_or_path)
+    if path.name == text and not path.suffix and text in available:
+        return available[text]
+    names = ", ".join(available) if available else f"none yet in {checkpoint_dir()}"
+    raise FileNotFoundError(
+        f"{text}: no such checkpoint file, run folder or committed checkpoint name (committed: {names})"
+    )
+
+
+def load_trained_model(
+    name_or_path: str | os.PathLike, device: str | torch.device = "cpu"
+) -> tuple[CuboidAbstractionNet, dict, Path]:
+    """Load a network by checkpoint path, run folder or committed name (:func:`resolve_checkpoint`).
+
+    Returns ``(model in evaluation mode, checkpoint dict, resolved path)``; see
+    :func:`cuboidlib.checkpoint.load_model`.
+    """
+    path = resolve_checkpoint(name_or_path)
+    model, state = load_model(path, device=device)
+    return model, state, path

@@ -1,0 +1,285 @@
+"""Scoring a trained network or the k-means baseline on a split of shapes (Sec. 4.1-4.2).
+
+:func:`evaluate_model` runs the network on a :class:`~cuboidlib.train.ShapeSet` and
+:func:`evaluate_baseline` fits the k-means + oriented-box baseline (:mod:`cuboidlib.baseline`) to
+each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), which
+:func:`format_table` prints together with the conventions behind every number:
+
+* **CD**: Chamfer distance between the input points and points sampled uniformly by area on the
+  existing cuboids, under one or more :class:`~cuboidlib.metrics.ChamferConvention` (default: the
+  paper's "symmetric L2 CD on 4096 points" read as squared L2, mean per direction, sum of the two
+  directions, scale 1), averaged over shapes.
+* **NC**: normal consistency, mean |n . n'| between each input normal and the normal of the nearest
+  point sampled on the cuboids, averaged over shapes.
+* **mIoU** by the paper's label transfer (Sec. 4.2): the paper labels each primitive with the part
+  that most of its points carry on a random 20 % of the shapes, then scores the test set with those
+  labels. Here the labelled 20 % is drawn (seeded) from the evaluated split itself and the mIoU is
+  computed on the remaining 80 % of that split, so no scored shape helped choose the labels.
+  Segment of a point = argmax over cuboids of the allocation W (network) or its k-means cluster
+  (baseline, whose indices carry no correspondence between shapes).
+* **N_AC**: average number of existing cuboids, existence probability > 0.5 (Tables 6-7).
+
+A shape on which the network predicts no existing cuboid is scored with its single most probable
+cuboid (counted in ``shapes_without_existing_cuboid``); N_AC counts the cuboids actually used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from .baseline import fit_cluster_boxes
+from .losses import allocation_weighted_centers
+from .metrics import (
+    ChamferConvention,
+    cuboid_chamfer_distance,
+    mean_iou,
+    normal_consistency,
+    number_of_existing_cuboids,
+    transfer_part_labels,
+)
+from .model import CuboidAbstractionNet
+from .train import ShapeSet
+
+__all__ = [
+    "CuboidPredictions",
+    "predict_cuboids",
+    "label_transfer_split",
+    "score_cuboids",
+    "evaluate_model",
+    "evaluate_baseline",
+    "format_table",
+]
+
+
+@dataclass
+class CuboidPredictions:
+    """Cuboids of S shapes: centers (S, M, 3), quaternions (S, M, 4), half_sizes (S, M, 3), exists
+    (S, M) bool, segmentation (S, N) int64 (segment index of every input point, in [0, M))."""
+
+    centers: torch.Tensor
+    quaternions: torch.Tensor
+    half_sizes: torch.Tensor
+    exists: torch.Tensor
+    segmentation: torch.Tensor
+
+    @property
+    def num_segments(self) -> int:
+        return int(self.centers.shape[1])
+
+
+@torch.no_grad()
+def predict_cuboids(
+    model: CuboidAbstractionNet, shapes: ShapeSet, batch_size: int = 32, centers_from_allocation: bool = False
+) -> tuple[CuboidPredictions, int]:
+    """Run the network in evaluation mode (z = mu) on every shape.
+
+    Returns the predictions (on the CPU; a cuboid exists when its existence probability exceeds
+    0.5, and a shape with none keeps its most probable cuboid) and the number of shapes that needed
+    that fallback. ``centers_from_allocation``: place each cuboid at the allocation-weighted
+    centroid of the points (:func:`cuboidlib.losses.allocation_weighted_centers`) instead of the
+    predicted translation, for networks trained with ``LossConfig(centers_from_allocation=True)``
+    (the authors' code), whose translation head the losses never see.
+    """
+    was_training = model.training
+    model.eval()
+    device = next(model.parameters()).device
+    parts: dict[str, list[torch.Tensor]] = {k: [] for k in ("centers", "quaternions", "half_sizes", "probs", "seg")}
+    try:
+        for start in range(0, len(shapes), batch_size):
+            points = shapes.points[start:start + batch_size].to(device)
+            out = model(points)
+            centers = allocation_weighted_centers(out.W, points) if centers_from_allocation else out.centers
+            parts["centers"].append(centers.cpu())
+            parts["quaternions"].append(out.quaternions.cpu())
+            parts["half_sizes"].append(out.half_sizes.cpu())
+            parts["probs"].append(out.exist_probs.cpu())
+            parts["seg"].append(out.segmentation.cpu())
+    finally:
+        model.train(was_training)
+    probs = torch.cat(parts["probs"])
+    exists = probs > 0.5
+    empty = ~exists.any(dim=1)
+    exists[empty, probs[empty].argmax(dim=1)] = True
+    pred = CuboidPredictions(torch.cat(parts["centers"]), torch.cat(parts["quaternions"]),
+                             torch.cat(parts["half_sizes"]), exists, torch.cat(parts["seg"]))
+    return pred, int(empty.sum())
+
+
+def label_transfer_split(n_shapes: int, fraction: float = 0.2, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Seeded split of ``n_shapes`` into the labelled shapes (round(fraction * n), at least 1) and the
+    scored rest (at least 1). Returns two sorted int64 index tensors."""
+    if not 0 < fraction < 1:
+        raise ValueError(f"label_transfer_fraction must lie in (0, 1), got {fraction}")
+    if n_shapes < 2:
+        raise ValueError(f"label transfer needs at least 2 shapes (some to label, some to score), got {n_shapes}")
+    k = min(n_shapes - 1, max(1, round(fraction * n_shapes)))
+    perm = torch.randperm(n_shapes, generator=torch.Generator().manual_seed(seed))
+    return perm[:k].sort().values, perm[k:].sort().values
+
+
+def _shape_generator(seed: int, shape: int) -> torch.Generator:
+    """The generator of the surface samples of one shape: results do not depend on batching."""
+    return torch.Generator().manual_seed(int(np.random.SeedSequence([seed, shape]).generate_state(1)[0]))
+
+
+def score_cuboids(
+    shapes: ShapeSet,
+    pred: CuboidPredictions,
+    label_transfer_fraction: float = 0.2,
+    conventions: Sequence[ChamferConvention] = (ChamferConvention(),),
+    seed: int = 0,
+) -> dict:
+    """CD (one entry per convention), NC, mIoU by label transfer and N_AC of cuboids fitted to ``shapes``.
+
+    The surface samples of shape i come from a generator seeded with ``(seed, i)``, so two
+    conventions with the same ``n_samples`` compare the same samples, and NC uses the samples of the
+    first convention. mIoU is None when the shapes have no part labels. See the module docstring
+    for the definitions.
+    """
+    if not conventions:
+        raise ValueError("give at least one Chamfer convention")
+    n = len(shapes)
+    points, normals = shapes.points.cpu(), shapes.normals.cpu()
+    cuboids = lambda i: (pred.centers[i:i + 1], pred.quaternions[i:i + 1], pred.half_sizes[i:i + 1],  # noqa: E731
+                         pred.exists[i:i + 1])
+    chamfer = []
+    for convention in conventions:
+        values = torch.cat([
+            cuboid_chamfer_distance(points[i:i + 1], *cuboids(i), convention=convention,
+                                    generator=_shape_generator(seed, i))
+            for i in range(n)
+        ])
+        chamfer.append({"norm": convention.norm, "directions": convention.directions, "scale": convention.scale,
+                        "n_samples": convention.n_samples, "convention": convention.describe(),
+                        "value": float(values.double().mean())})
+    n_samples = conventions[0].n_samples
+    nc = torch.cat([
+        normal_consistency(points[i:i + 1], normals[i:i + 1], *cuboids(i), n_samples=n_samples,
+                           generator=_shape_generator(seed, i))
+        for i in range(n)
+    ])
+    miou, transfer = None, None
+    if shapes.labels is not None:
+        labelled, scored = label_transfer_split(n, label_transfer_fraction, seed)
+        seg, gt = pred.segmentation.cpu(), shapes.labels.cpu()
+        num_parts = shapes.num_parts if shapes.num_parts is not None else int(gt.max()) + 1
+        cuboid_labels = transfer_part_labels(seg[labelled], gt[labelled], pred.num_segments, num_parts)
+        miou = mean_iou(cuboid_labels[seg[scored]], gt[scored], num_parts)
+        transfer = {"fraction": label_transfer_fraction, "n_labelled": len(labelled), "n_scored": len(scored),
+                    "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
+    return {
+        "n_shapes": n,
+        "chamfer": chamfer,
+        "normal_consistency": float(nc.double().mean()),
+        "normal_samples": n_samples,
+        "miou": miou,
+        "label_transfer": transfer,
+        "n_ac": float(number_of_existing_cuboids(pred.exists)),
+    }
+
+
+def evaluate_model(
+    model: CuboidAbstractionNet,
+    shapes: ShapeSet,
+    label_transfer_fraction: float = 0.2,
+    conventions: Sequence[ChamferConvention] = (ChamferConvention(),),
+    seed: int = 0,
+    batch_size: int = 32,
+    name: str = "network",
+    centers_from_allocation: bool = False,
+) -> dict:
+    """Metrics of the network on ``shapes`` (CD, NC, mIoU by label transfer, N_AC), see :func:`score_cuboids`.
+
+    The network runs in evaluation mode (BatchNorm running statistics, z = mu); for
+    ``centers_from_allocation`` see :func:`predict_cuboids` (pass the value the network was trained
+    with). The returned dict (JSON types only) also holds ``method`` (= ``name``), ``num_cuboids``
+    (M) and ``shapes_without_existing_cuboid``.
+    """
+    pred, fallback = predict_cuboids(model, shapes, batch_size, centers_from_allocation)
+    result = {"method": name, "num_cuboids": pred.num_segments}
+    result.update(score_cuboids(shapes, pred, label_transfer_fraction, conventions, seed))
+    result["shapes_without_existing_cuboid"] = fallback
+    return result
+
+
+def evaluate_baseline(
+    shapes: ShapeSet,
+    num_boxes: int,
+    label_transfer_fraction: float = 0.2,
+    conventions: Sequence[ChamferConvention] = (ChamferConvention(),),
+    seed: int = 0,
+    normal_weight: float = 0.2,
+) -> dict:
+    """The k-means + oriented-box baseline (:func:`cuboidlib.baseline.fit_cluster_boxes`), scored like
+    the network: ``num_boxes`` clusters per shape (k-means seeded with ``seed``), cluster index =
+    segment index for the label transfer (indices do not correspond across shapes)."""
+    if not (isinstance(num_boxes, int) and num_boxes >= 1):
+        raise ValueError(f"num_boxes must be a positive integer, got {num_boxes!r}")
+    fits = [fit_cluster_boxes(p, nrm, num_boxes, normal_weight=normal_weight, seed=seed)
+            for p, nrm in zip(shapes.points.cpu(), shapes.normals.cpu())]
+    s, m = len(fits), num_boxes
+    centers = torch.zeros(s, m, 3)
+    quaternions = torch.zeros(s, m, 4)
+    quaternions[..., 0] = 1.0
+    half_sizes = torch.full((s, m, 3), 1e-3)
+    exists = torch.zeros(s, m, dtype=torch.bool)
+    for i, fit in enumerate(fits):
+        k = fit.cuboids.num_cuboids
+        centers[i, :k], quaternions[i, :k] = fit.cuboids.centers[0], fit.cuboids.quaternions[0]
+        half_sizes[i, :k], exists[i, :k] = fit.cuboids.half_sizes[0], True
+    pred = CuboidPredictions(centers, quaternions, half_sizes, exists, torch.stack([f.labels for f in fits]))
+    result = {"method": f"k-means boxes (K={num_boxes})", "num_cuboids": num_boxes}
+    result.update(score_cuboids(shapes, pred, label_transfer_fraction, conventions, seed))
+    result["shapes_without_existing_cuboid"] = 0
+    return result
+
+
+def format_table(results: Sequence[dict], title: str | None = None) -> str:
+    """A plain-text table of :func:`evaluate_model` / :func:`evaluate_baseline` results, followed by
+    the convention of every column (Chamfer conventions numbered [1], [2], ...)."""
+    if not results:
+        raise ValueError("no results to format")
+    conventions: list[str] = []
+    for r in results:
+        for c in r["chamfer"]:
+            if c["convention"] not in conventions:
+                conventions.append(c["convention"])
+    header = ["method", "shapes"] + [f"CD [{i + 1}]" for i in range(len(conventions))] + ["NC", "mIoU", "N_AC"]
+    rows = []
+    for r in results:
+        cd = {c["convention"]: c["value"] for c in r["chamfer"]}
+        rows.append(
+            [r["method"], str(r["n_shapes"])]
+            + [f"{cd[c]:.5f}" if c in cd else "-" for c in conventions]
+            + [f"{r['normal_consistency']:.4f}", "-" if r["miou"] is None else f"{100 * r['miou']:.1f}",
+               f"{r['n_ac']:.2f}"]
+        )
+    widths = [max(len(row[i]) for row in [header] + rows) for i in range(len(header))]
+
+    def fmt(row: list[str]) -> str:  # method name left-aligned, numbers right-aligned
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
+
+    lines = ([title] if title else []) + [fmt(header), fmt(["-" * w for w in widths])] + [fmt(r) for r in rows]
+    lines += [f"[{i + 1}] {c}" for i, c in enumerate(conventions)]
+    lines.append(f"NC: normal consistency, mean |n . n'| of the input normals and the normals of the nearest of "
+                 f"{results[0]['normal_samples']} points sampled on the cuboids (1 = perfect).")
+    transfer = next((r["label_transfer"] for r in results if r["label_transfer"]), None)
+    if transfer:
+        lines.append(
+            f"mIoU (%): part labels transferred from {transfer['n_labelled']} shapes "
+            f"({100 * transfer['fraction']:.0f} % of the split, seed {transfer['seed']}) to the other "
+            f"{transfer['n_scored']}; per-label IoU over all their points, averaged over the labels (Sec. 4.2)."
+        )
+    else:
+        lines.append("mIoU: not computed (the shapes have no part labels).")
+    lines.append("N_AC: average number of existing cuboids (existence probability > 0.5; k-means: boxes fitted).")
+    for r in results:
+        if r.get("shapes_without_existing_cuboid"):
+            lines.append(f"{r['method']}: {r['shapes_without_existing_cuboid']} of {r['n_shapes']} shapes have no "
+                         "cuboid with existence probability > 0.5; their most probable cuboid was scored.")
+    return "\n".join(lines)
+

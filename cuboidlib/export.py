@@ -1,0 +1,704 @@
+"""Writing cuboid abstractions to files: JSON, meshes (GLB, OBJ, PLY), segmented point clouds, HTML.
+
+Every cuboid m is coloured ``PALETTE[m]`` (:mod:`cuboidlib.viz`) in every format, so a cuboid has
+the same colour in a lesson's figure, a mesh viewer and the HTML page.
+
+**Coordinates.** Shapes are abstracted in the course's normalised coordinates (bounding box
+centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`). That map is a translation and a
+uniform scale, so a cuboid goes back to the input's original coordinates with
+
+    centre_original = centre * scale + center,   size_original = size * scale,   rotation unchanged
+
+(:func:`denormalize_cuboids`, inverse :func:`normalize_cuboids`). :func:`write_result` writes in the
+original coordinates unless asked for normalised output; the JSON says which it holds.
+
+JSON schema (``format`` "cuboidlib-cuboids", ``version`` 1)
+-------------------------------------------------------------
+
+One file describes the M cuboids of ONE shape::
+
+    {
+      "format": "cuboidlib-cuboids",
+      "version": 1,
+      "source": "chair_0.ply",              # input file name, or null
+      "method": {"name": "fit", ...},       # how the cuboids were made (informative), or null
+      "convention": {                       # fixed texts that document the fields below
+        "center": "...", "quaternion": "...", "rotation_matrix": "...", "size": "...", "units": "..."
+      },
+      "coordinates": "original",            # or "normalized": the frame of every centre and size
+      "normalization": {                    # the input's normalisation (identity if unknown)
+        "center": [cx, cy, cz], "scale": s, "rule": "original = normalized * scale + center"
+      },
+      "num_cuboids": M,                     # cuboid slots, existing or not
+      "num_existing": K,
+      "chamfer": {"value": 0.0123, "convention": "...", "coordinates": "normalized"},  # optional
+      "part_names": ["back", "seat", ...],  # optional: names of the part labels
+      "points_file": "chair_0_segmentation.ply",  # optional: the segmented points, same coordinates
+      "cuboids": [
+        {
+          "index": 0,                       # cuboid index m (colour PALETTE[m], mesh node "cuboid_00")
+          "exists": true,
+          "center": [x, y, z],              # world position of the cuboid's centre
+          "quaternion": [w, x, y, z],       # unit, rotates the local axes into the world
+          "rotation_matrix": [[...], [...], [...]],  # the same rotation, row-major; columns = local axes
+          "size": [lx, ly, lz],             # FULL edge lengths along the local x, y, z axes (2 x half size)
+          "part_label": 1,                  # semantic part of the cuboid's points, or null if unknown
+          "part_name": "seat"               # only when part_names is given (null if unknown)
+        }, ...
+      ]
+    }
+
+A world point is p = R l + center for a local point l in [-size/2, size/2]^3 (R = rotation_matrix).
+Numbers are written with full precision, so :func:`read_cuboids_json` returns exactly the cuboids
+that were written (float32 inputs come back bit for bit).
+
+Meshes (:func:`write_cuboid_mesh`, existing cuboids only, 8 corners and 12 outward triangles each):
+
+* **GLB**: one scene node and mesh per cuboid, named ``cuboid_07`` (two digits, more for M > 100),
+  with a PBR material of the same name whose base colour is the palette colour (the sRGB values, as
+  most tools write them);
+* **OBJ**: one object ``o cuboid_07`` per cuboid with material ``cuboid_07`` in the ``.mtl`` file
+  written next to it (``Kd`` = palette colour);
+* **PLY** (binary): vertices coloured with the palette (red, green, blue, alpha) and an int
+  ``cuboid`` property per face, the cuboid index.
+
+Segmented point clouds (:func:`write_segmented_point_cloud`): binary PLY with float ``x y z`` (and
+``nx ny nz``), uchar ``red green blue`` (palette colour of the point's cuboid, grey for label -1)
+and an int ``label`` = the cuboid index; :func:`cuboidlib.io.read_point_cloud` reads it back.
+
+HTML (:func:`write_view_html`): a self-contained plotly page (plotly.js embedded, about 4-5 MB, no
+server or internet needed) of one result or a folder of results, drawn by
+:func:`cuboidlib.viz.plot_cuboids_plotly`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import trimesh
+
+from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
+from .metrics import ChamferConvention
+from .viz import UNLABELLED, cuboid_color
+
+__all__ = [
+    "JSON_FORMAT",
+    "JSON_VERSION",
+    "COORDINATES",
+    "MESH_FORMATS",
+    "CONVENTION",
+    "palette_rgba",
+    "denormalize_cuboids",
+    "normalize_cuboids",
+    "cuboid_node_name",
+    "cuboids_to_dict",
+    "cuboids_from_dict",
+    "write_cuboids_json",
+    "read_cuboids_json",
+    "cuboid_scene",
+    "write_cuboid_mesh",
+    "write_segmented_point_cloud",
+    "AbstractionResult",
+    "write_result",
+    "result_files",
+    "write_view_html",
+]
+
+JSON_FORMAT = "cuboidlib-cuboids"
+JSON_VERSION = 1
+COORDINATES = ("original", "normalized")
+MESH_FORMATS = ("glb", "obj", "ply")
+
+#: The texts of the JSON's "convention" entry.
+CONVENTION = {
+    "center": "world position of the cuboid centre, in the units given by 'coordinates'",
+    "quaternion": "unit quaternion (w, x, y, z), rotates the cuboid's local axes into the world",
+    "rotation_matrix": "the same rotation as a row-major 3x3 matrix R; its columns are the local x, y, z "
+    "axes in world coordinates; a local point l maps to R l + center",
+    "size": "full edge lengths along the local x, y, z axes (twice the half sizes)",
+    "units": "'original': the input file's units; 'normalized': bounding box of the input centred at the "
+    "origin with diagonal 1 (original = normalized * scale + center)",
+}
+
+_QUATERNION_MATRIX_TOL = 1e-5
+
+
+# ----------------------------------------------------------------------------------------------
+# Colours and coordinates
+# ----------------------------------------------------------------------------------------------
+
+
+def _rgb255(hex_color: str) -> list[int]:
+    return [int(hex_color[i : i + 2], 16) for i in (1, 3, 5)]
+
+
+def palette_rgba(m: int) -> np.ndarray:
+    """(m, 4) uint8 RGBA colours of cuboid indices 0 .. m - 1 (``cuboid_color``, alpha 255)."""
+    if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
+        raise ValueError(f"m must be a non-negative integer, got {m!r}")
+    return np.array([_rgb255(cuboid_color(i)) + [255] for i in range(m)], dtype=np.uint8).reshape(m, 4)
+
+
+def _normalization(center, scale, b: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    c = torch.as_tensor(np.asarray(center.detach().cpu() if isinstance(center, torch.Tensor) else center,
+                                   dtype=np.float64)).to(like)
+    s = torch.as_tensor(np.asarray(scale.detach().cpu() if isinstance(scale, torch.Tensor) else scale,
+                                   dtype=np.float64)).to(like)
+    if c.shape == (3,):
+        c = c.expand(b, 3)
+    if s.dim() == 0:
+        s = s.expand(b)
+    if c.shape != (b, 3) or s.shape != (b,):
+        raise ValueError(f"center must have shape (3,) or ({b}, 3) and scale () or ({b},), got "
+                         f"{tuple(c.shape)} and {tuple(s.shape)}")
+    if not torch.isfinite(c).all() or not torch.isfinite(s).all() or (s <= 0).any():
+        raise ValueError("the normalisation needs a finite center and a finite positive scale")
+    return c, s
+
+
+def denormalize_cuboids(cuboids: Cuboids, center, scale) -> Cuboids:
+    """Cuboids in normalised coordinates -> the input's original coordinates.
+
+    center: (3,) or (B, 3); scale: scalar or (B,) (as :func:`cuboidlib.normalization.normalize`
+    returns them). Centres become ``c * scale + center``, half sizes ``s * scale``; quaternions and
+    existence are unchanged (a translation and a uniform scale do not rotate anything).
+    """
+    c, s = _normalization(center, scale, cuboids.batch_size, cuboids.centers)
+    return Cuboids(cuboids.centers * s[:, None, None] + c[:, None], cuboids.quaternions,
+                   cuboids.half_sizes * s[:, None, None], cuboids.exists)
+
+
+def normalize_cuboids(cuboids: Cuboids, center, scale) -> Cuboids:
+    """Inverse of :func:`denormalize_cuboids`: centres ``(c - center) / scale``, half sizes ``s / scale``."""
+    c, s = _normalization(center, scale, cuboids.batch_size, cuboids.centers)
+    return Cuboids((cuboids.centers - c[:, None]) / s[:, None, None], cuboids.quaternions,
+                   cuboids.half_sizes / s[:, None, None], cuboids.exists)
+
+
+def _one_shape(cuboids: Cuboids, index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(centers (M, 3), quaternions (M, 4), half_sizes (M, 3), exists (M,)) of shape ``index``, detached."""
+    if not isinstance(cuboids, Cuboids):
+        raise TypeError(f"cuboids must be a Cuboids batch, got {type(cuboids).__name__}")
+    if not -cuboids.batch_size <= index < cuboids.batch_size:
+        raise IndexError(f"index {index} is out of range for a batch of {cuboids.batch_size} shapes")
+    c = cuboids.detach().to(device="cpu")
+    return c.centers[index], c.quaternions[index], c.half_sizes[index], c.existing()[index]
+
+
+def cuboid_node_name(m: int, num_cuboids: int) -> str:
+    """Name of cuboid m in meshes: ``cuboid_07`` (at least two digits, enough for every index < M)."""
+    return f"cuboid_{m:0{max(2, len(str(num_cuboids - 1)))}d}"
+
+
+# ----------------------------------------------------------------------------------------------
+# JSON
+# ----------------------------------------------------------------------------------------------
+
+
+def _floats(x: torch.Tensor) -> list:
+    return x.double().tolist()
+
+
+def cuboids_to_dict(
+    cuboids: Cuboids,
+    index: int = 0,
+    *,
+    coordinates: str = "original",
+    center=None,
+    scale: float = 1.0,
+    source: str | None = None,
+    method: dict | None = None,
+    part_labels=None,
+    part_names=None,
+    chamfer: float | None = None,
+    chamfer_convention: ChamferConvention | None = None,
+    points_file: str | None = None,
+) -> dict:
+    """The JSON document (module docstring) of shape ``index`` of ``cuboids``.
+
+    The cuboids must already be in ``coordinates`` ("original" or "normalized"); ``center`` and
+    ``scale`` record the input's normalisation (default: identity). part_labels: optional (M,)
+    integers, -1 = unknown; part_names: optional names of the labels. chamfer: a Chamfer distance
+    measured on the normalised shape, stated with ``chamfer_convention`` (required with it).
+    method: a dict of JSON types describing how the cuboids were made.
+    """
+    if coordinates not in COORDINATES:
+        raise ValueError(f"coordinates must be one of {COORDINATES}, got {coordinates!r}")
+    c, q, s, e = _one_shape(cuboids, index)
+    m = c.shape[0]
+    float64 = torch.zeros((), dtype=torch.float64)
+    center_t, scale_t = _normalization(np.zeros(3) if center is None else center, scale, 1, float64)
+    labels = None
+    if part_labels is not None:
+        labels = np.asarray(part_labels.cpu() if isinstance(part_labels, torch.Tensor) else part_labels)
+        if labels.shape != (m,) or not np.issubdtype(labels.dtype, np.integer):
+            raise ValueError(f"part_labels must be ({m},) integers (-1 = unknown), got shape {labels.shape}, "
+                             f"dtype {labels.dtype}")
+    names = None if part_names is None else [str(n) for n in part_names]
+    if labels is not None and names is not None and labels.max(initial=-1) >= len(names):
+        raise ValueError(f"part_labels go up to {labels.max()} but only {len(names)} part_names are given")
+    R = quaternion_to_rotation_matrix(q, validate=False)
+    items = []
+    for i in range(m):
+        label = None if labels is None or labels[i] < 0 else int(labels[i])
+        item = {
+            "index": i,
+            "exists": bool(e[i]),
+            "center": _floats(c[i]),
+            "quaternion": _floats(q[i]),
+            "rotation_matrix": _floats(R[i]),
+            "size": _floats(2 * s[i]),
+            "part_label": label,
+        }
+        if names is not None:
+            item["part_name"] = None if label is None else names[label]
+        items.append(item)
+    doc = {
+        "format": JSON_FORMAT,
+        "version": JSON_VERSION,
+        "source": source,
+        "method": method,
+        "convention": dict(CONVENTION),
+        "coordinates": coordinates,
+        "normalization": {"center": _floats(center_t[0]), "scale": float(scale_t[0]),
+                          "rule": "original = normalized * scale + center"},
+        "num_cuboids": m,
+        "num_existing": int(e.sum()),
+    }
+    if chamfer is not None:
+        if not isinstance(chamfer_convention, ChamferConvention):
+            raise ValueError("a chamfer value needs its chamfer_convention (a ChamferConvention)")
+        doc["chamfer"] = {"value": float(chamfer), "convention": chamfer_convention.describe(),
+                          "coordinates": "normalized"}
+    if names is not None:
+        doc["part_names"] = names
+    if points_file is not None:
+        doc["points_file"] = str(points_file)
+    doc["cuboids"] = items
+    return doc
+
+
+def write_cuboids_json(path: str | os.PathLike, cuboids: Cuboids, index: int = 0, **kwargs) -> Path:
+    """Write shape ``index`` of ``cuboids`` as JSON; keyword arguments as :func:`cuboids_to_dict`."""
+    path = Path(path)
+    doc = cuboids_to_dict(cuboids, index, **kwargs)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(_dumps(doc) + "\n")
+    return path
+
+
+def _dumps(doc: dict) -> str:
+    """Indented JSON with every list of numbers (a centre, a quaternion, a matrix row) on one line."""
+    lists: list[str] = []
+
+    def mark(x):
+        if isinstance(x, dict):
+            return {k: mark(v) for k, v in x.items()}
+        if isinstance(x, list):
+            if x and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in x):
+                lists.append(json.dumps(x))
+                return f"\0{len(lists) - 1}\0"  # a placeholder string, replaced below
+            return [mark(v) for v in x]
+        return x
+
+    text = json.dumps(mark(doc), indent=1)
+    return re.sub(r'"\\u0000(\d+)\\u0000"', lambda m: lists[int(m[1])], text)
+
+
+def _numbers(value, n: int, what: str) -> list[float]:
+    if (not isinstance(value, list) or len(value) != n
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+        raise ValueError(f"{what} must be a list of {n} finite numbers, got {value!r}")
+    return [float(v) for v in value]
+
+
+def cuboids_from_dict(
+    doc: dict, where: str = "cuboid JSON", dtype: torch.dtype = torch.float64
+) -> tuple[Cuboids, dict]:
+    """Parse and check a JSON document of :func:`cuboids_to_dict`; see :func:`read_cuboids_json`."""
+    if not isinstance(doc, dict) or doc.get("format") != JSON_FORMAT:
+        raise ValueError(f"{where}: not a cuboidlib cuboid file (no \"format\": \"{JSON_FORMAT}\")")
+    version = doc.get("version")
+    if not isinstance(version, int) or version > JSON_VERSION:
+        raise ValueError(f"{where}: version {version!r} is not supported (this cuboidlib reads up to {JSON_VERSION})")
+    coordinates = doc.get("coordinates")
+    if coordinates not in COORDINATES:
+        raise ValueError(f"{where}: \"coordinates\" must be one of {COORDINATES}, got {coordinates!r}")
+    norm = doc.get("normalization")
+    if not isinstance(norm, dict):
+        raise ValueError(f"{where}: \"normalization\" must be an object with center and scale")
+    center = _numbers(norm.get("center"), 3, f"{where}: normalization.center")
+    scale = norm.get("scale")
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+        raise ValueError(f"{where}: normalization.scale must be a positive number, got {scale!r}")
+    items = doc.get("cuboids")
+    if not isinstance(items, list) or not items:
+        raise ValueError(f"{where}: \"cuboids\" must be a non-empty list")
+    m = len(items)
+    indices = [item.get("index") if isinstance(item, dict) else None for item in items]
+    if not all(isinstance(i, int) and not isinstance(i, bool) for i in indices) or sorted(indices) != list(range(m)):
+        raise ValueError(f"{where}: the cuboids' \"index\" values must be 0 .. {m - 1}, each once")
+    rows = [None] * m
+    for item in items:
+        i = item["index"]
+        what = f"{where}: cuboid {i}"
+        if not isinstance(item.get("exists"), bool):
+            raise ValueError(f"{what}: \"exists\" must be true or false, got {item.get('exists')!r}")
+        size = _numbers(item.get("size"), 3, f"{what}: size")
+        if min(size) <= 0:
+            raise ValueError(f"{what}: every size must be positive, got {size}")
+        label = item.get("part_label")
+        if label is not None and (isinstance(label, bool) or not isinstance(label, int) or label < 0):
+            raise ValueError(f"{what}: part_label must be a non-negative integer or null, got {label!r}")
+        rows[i] = (_numbers(item.get("center"), 3, f"{what}: center"),
+                   _numbers(item.get("quaternion"), 4, f"{what}: quaternion"), size, item["exists"],
+                   -1 if label is None else label, item.get("rotation_matrix"))
+    centers = torch.tensor([r[0] for r in rows], dtype=dtype)[None]
+    quaternions = torch.tensor([r[1] for r in rows], dtype=dtype)[None]
+    half_sizes = torch.tensor([r[2] for r in rows], dtype=dtype)[None] / 2
+    exists = torch.tensor([r[3] for r in rows])[None]
+    try:
+        cuboids = Cuboids(centers, quaternions, half_sizes, exists)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from exc
+    R = quaternion_to_rotation_matrix(cuboids.quaternions[0].double(), validate=False)
+    for i, r in enumerate(rows):
+        if r[5] is None:
+            continue
+        if not isinstance(r[5], list) or len(r[5]) != 3:
+            raise ValueError(f"{where}: cuboid {i}: rotation_matrix must be 3 rows of 3 numbers")
+        matrix = torch.tensor([_numbers(row, 3, f"{where}: cuboid {i}: rotation_matrix row") for row in r[5]],
+                              dtype=torch.float64)
+        err = float((matrix - R[i]).abs().max())
+        if err > _QUATERNION_MATRIX_TOL:
+            raise ValueError(f"{where}: cuboid {i}: rotation_matrix and quaternion disagree (by {err:.3g}); "
+                             "they must describe the same rotation")
+    meta = {k: v for k, v in doc.items() if k != "cuboids"}
+    meta["part_labels"] = [r[4] for r in rows]
+    meta["normalization"] = {**norm, "center": center, "scale": float(scale)}
+    return cuboids, meta
+
+
+def read_cuboids_json(
+    path: str | os.PathLike, coordinates: str | None = None, dtype: torch.dtype = torch.float64
+) -> tuple[Cuboids, dict]:
+    """Read a file of :func:`write_cuboids_json` back as ``(Cuboids (1, M, ...), metadata)``.
+
+    coordinates: None keeps the stored frame; "original" or "normalized" converts with the stored
+    normalisation (and updates ``metadata["coordinates"]``). metadata: every top-level entry but
+    "cuboids", plus ``part_labels``, a list of M ints (-1 = unknown). Raises ``FileNotFoundError``
+    for a missing file and ``ValueError`` naming the file and the entry for anything malformed
+    (wrong lengths, NaN, non-unit quaternions, non-positive sizes, a rotation matrix that
+    contradicts its quaternion, ...).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    cuboids, meta = cuboids_from_dict(doc, str(path), dtype)
+    if coordinates is not None and coordinates != meta["coordinates"]:
+        if coordinates not in COORDINATES:
+            raise ValueError(f"coordinates must be None or one of {COORDINATES}, got {coordinates!r}")
+        convert = denormalize_cuboids if coordinates == "original" else normalize_cuboids
+        cuboids = convert(cuboids, meta["normalization"]["center"], meta["normalization"]["scale"])
+        meta["coordinates"] = coordinates
+    return cuboids, meta
+
+
+# ----------------------------------------------------------------------------------------------
+# Meshes
+# ----------------------------------------------------------------------------------------------
+
+
+def _existing_meshes(cuboids: Cuboids, index: int) -> list[tuple[int, trimesh.Trimesh]]:
+    """(cuboid index, mesh with 8 vertices, 12 triangles, palette face colours) of every existing cuboid."""
+    c, q, s, e = _one_shape(cuboids, index)
+    keep = torch.nonzero(e)[:, 0].tolist()
+    if not keep:
+        raise ValueError(f"shape {index} has no existing cuboid; there is nothing to write")
+    meshes = cuboids_to_trimesh(c, q, s, e, colors=palette_rgba(c.shape[0]), split=True)
+    return list(zip(keep, meshes))
+
+
+def cuboid_scene(cuboids: Cuboids, index: int = 0) -> trimesh.Scene:
+    """A trimesh scene of the existing cuboids of shape ``index``: one node per cuboid, named
+    ``cuboid_07`` like its mesh and its PBR material (base colour = palette colour)."""
+    m = cuboids.num_cuboids
+    scene = trimesh.Scene()
+    for i, mesh in _existing_meshes(cuboids, index):
+        name = cuboid_node_name(i, m)
+        material = trimesh.visual.material.PBRMaterial(
+            name=name, baseColorFactor=palette_rgba(m)[i], metallicFactor=0.0, roughnessFactor=1.0
+        )
+        mesh.visual = trimesh.visual.TextureVisuals(material=material)
+        scene.add_geometry(mesh, node_name=name, geom_name=name)
+    return scene
+
+
+def _write_obj(path: Path, cuboids: Cuboids, index: int) -> None:
+    m = cuboids.num_cuboids
+    mtl = path.with_suffix(".mtl")
+    colors = palette_rgba(m)
+    obj_lines = ["# cuboids written by cuboidlib: one object per existing cuboid, material = palette colour",
+                 f"mtllib {mtl.name}"]
+    mtl_lines = ["# palette colours of the cuboids (cuboidlib.viz.PALETTE)"]
+    offset = 1
+    for i, mesh in _existing_meshes(cuboids, index):
+        name = cuboid_node_name(i, m)
+        obj_lines += [f"o {name}", f"usemtl {name}"]
+        obj_lines += ["v {:.9g} {:.9g} {:.9g}".format(*v) for v in mesh.vertices]
+        obj_lines += ["f {} {} {}".format(*(f + offset)) for f in mesh.faces]
+        offset += len(mesh.vertices)
+        r, g, b = (colors[i, :3] / 255).tolist()
+        mtl_lines += [f"newmtl {name}", f"Kd {r:.6f} {g:.6f} {b:.6f}", "Ka 0 0 0", "Ks 0 0 0", "d 1", "illum 1"]
+    path.write_text("\n".join(obj_lines) + "\n")
+    mtl.write_text("\n".join(mtl_lines) + "\n")
+
+
+def write_cuboid_mesh(path: str | os.PathLike, cuboids: Cuboids, index: int = 0) -> Path:
+    """Write the existing cuboids of shape ``index`` as a mesh, format by suffix (.glb, .obj, .ply).
+
+    See the module docstring for how each format stores the cuboid index and its colour. An OBJ
+    also writes its ``.mtl`` next to it. Returns the path of the mesh file.
+    """
+    path = Path(path)
+    kind = path.suffix.lower().lstrip(".")
+    if kind not in MESH_FORMATS:
+        raise ValueError(f"{path}: unknown mesh format {path.suffix!r}; expected one of "
+                         f"{', '.join('.' + f for f in MESH_FORMATS)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if kind == "glb":
+        cuboid_scene(cuboids, index).export(str(path), file_type="glb")
+    elif kind == "obj":
+        _write_obj(path, cuboids, index)
+    else:
+        parts = _existing_meshes(cuboids, index)
+        vertices = np.concatenate([mesh.vertices for _, mesh in parts])
+        faces = np.concatenate([mesh.faces + 8 * k for k, (_, mesh) in enumerate(parts)])
+        kept = [i for i, _ in parts]
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        # one colour per cuboid on its own 8 vertices (vertex colours export without extra dependencies)
+        colors = np.repeat(palette_rgba(cuboids.num_cuboids)[kept], 8, axis=0)
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colors)
+        mesh.face_attributes["cuboid"] = np.repeat(kept, 12).astype(np.int32)
+        mesh.export(str(path), file_type="ply", encoding="binary")
+    return path
+
+
+# ----------------------------------------------------------------------------------------------
+# Segmented point clouds
+# ----------------------------------------------------------------------------------------------
+
+
+def _numpy(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+
+
+def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals=None) -> Path:
+    """Write points (N, 3) coloured by their cuboid as a binary PLY (see the module docstring).
+
+    labels: (N,) cuboid index of every point (-1 = none, drawn grey); normals: optional (N, 3).
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        raise ValueError(f"{path}: segmented point clouds are written as .ply")
+    p = _numpy(points).astype(np.float64)
+    lab = _numpy(labels)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
+        raise ValueError(f"points must have shape (N, 3) with N >= 1, got {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError("points contain NaN or infinite values")
+    if lab.shape != (len(p),) or not np.issubdtype(lab.dtype, np.integer) or (lab < -1).any():
+        raise ValueError(f"labels must be ({len(p)},) integers >= -1 (cuboid indices), got shape {lab.shape}, "
+                         f"dtype {lab.dtype}")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    n = None if normals is None else _numpy(normals).astype(np.float64)
+    if n is not None:
+        if n.shape != p.shape or not np.isfinite(n).all():
+            raise ValueError(f"normals must be finite with the shape of points {p.shape}, got {n.shape}")
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    fields += [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("label", "<i4")]
+    table = np.empty(len(p), dtype=fields)
+    for k, name in enumerate("xyz"):
+        table[name] = p[:, k]
+        if n is not None:
+            table["n" + name] = n[:, k]
+    colors = palette_rgba(int(lab.max()) + 1 if len(lab) else 0)[:, :3]
+    rgb = np.empty((len(p), 3), np.uint8)
+    rgb[lab >= 0] = colors[lab[lab >= 0]]
+    rgb[lab < 0] = _rgb255(UNLABELLED)
+    for k, name in enumerate(("red", "green", "blue")):
+        table[name] = rgb[:, k]
+    table["label"] = lab
+    kind = {"<f4": "float", "u1": "uchar", "<i4": "int"}
+    header = ["ply", "format binary_little_endian 1.0",
+              "comment written by cuboidlib: points coloured by cuboid, label = cuboid index",
+              f"element vertex {len(p)}"] + [f"property {kind[t]} {name}" for name, t in fields] + ["end_header"]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(table.tobytes())
+    return path
+
+
+# ----------------------------------------------------------------------------------------------
+# A whole result
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class AbstractionResult:
+    """The cuboid abstraction of ONE shape, in NORMALISED coordinates, ready to be written.
+
+    cuboids: :class:`~cuboidlib.geometry.Cuboids` (1, M, ...) with ``exists``.
+    center (3,), scale: the input's normalisation (original = normalized * scale + center).
+    points (N, 3), normals (N, 3), labels (N,) cuboid index per point: the segmented input (or None).
+    part_labels (M,): semantic part label of each cuboid, -1 unknown (or None); part_names their names.
+    chamfer, chamfer_convention: Chamfer distance on the normalised shape and how it was measured.
+    source: the input file name; method: a dict of JSON types saying how the cuboids were made.
+    """
+
+    cuboids: Cuboids
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    scale: float = 1.0
+    points: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    part_labels: np.ndarray | None = None
+    part_names: tuple[str, ...] | None = None
+    chamfer: float | None = None
+    chamfer_convention: ChamferConvention | None = None
+    source: str | None = None
+    method: dict | None = None
+
+
+def result_files(stem: str, mesh_formats=("glb",), points: bool = True) -> dict[str, str]:
+    """File names :func:`write_result` uses: ``{stem}.json``, ``{stem}.{glb|obj|ply}``,
+    ``{stem}.mtl`` with an OBJ, and ``{stem}_segmentation.ply`` for the points."""
+    names = {"json": f"{stem}.json"}
+    for fmt in mesh_formats:
+        if fmt not in MESH_FORMATS:
+            raise ValueError(f"unknown mesh format {fmt!r}; expected some of {MESH_FORMATS}")
+        names[fmt] = f"{stem}.{fmt}"
+        if fmt == "obj":
+            names["mtl"] = f"{stem}.mtl"
+    if points:
+        names["points"] = f"{stem}_segmentation.ply"
+    return names
+
+
+def write_result(
+    out_dir: str | os.PathLike,
+    result: AbstractionResult,
+    stem: str = "cuboids",
+    normalized: bool = False,
+    mesh_formats=("glb",),
+) -> dict[str, Path]:
+    """Write a result: JSON, the meshes in ``mesh_formats`` and the segmented points (if any).
+
+    Everything is written in the input's original coordinates, or in the normalised ones with
+    ``normalized=True`` (the JSON records which, and the normalisation either way). File names
+    come from :func:`result_files`. Returns ``{kind: path}``.
+    """
+    if not isinstance(result, AbstractionResult):
+        raise TypeError(f"result must be an AbstractionResult, got {type(result).__name__}")
+    if result.cuboids.batch_size != 1:
+        raise ValueError(f"result.cuboids must hold ONE shape, got a batch of {result.cuboids.batch_size}")
+    out = Path(out_dir)
+    names = result_files(stem, mesh_formats, result.points is not None)
+    cuboids = result.cuboids if normalized else denormalize_cuboids(result.cuboids, result.center, result.scale)
+    written = {}
+    if result.points is not None:
+        points = _numpy(result.points).astype(np.float64)
+        if not normalized:
+            points = points * result.scale + np.asarray(result.center, dtype=np.float64)
+        labels = result.labels if result.labels is not None else np.full(len(points), -1)
+        written["points"] = write_segmented_point_cloud(out / names["points"], points, labels, result.normals)
+    written["json"] = write_cuboids_json(
+        out / names["json"], cuboids, coordinates="normalized" if normalized else "original",
+        center=result.center, scale=result.scale, source=result.source, method=result.method,
+        part_labels=result.part_labels, part_names=result.part_names, chamfer=result.chamfer,
+        chamfer_convention=result.chamfer_convention, points_file=names.get("points"),
+    )
+    for fmt in mesh_formats:
+        written[fmt] = write_cuboid_mesh(out / names[fmt], cuboids)
+        if fmt == "obj":
+            written["mtl"] = out / names["mtl"]
+    return written
+
+
+# ----------------------------------------------------------------------------------------------
+# HTML view
+# ----------------------------------------------------------------------------------------------
+
+
+def _result_jsons(path: Path) -> list[Path]:
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: no such result folder or JSON file")
+    found = []
+    for candidate in sorted(path.glob("*.json")):
+        try:
+            doc = json.loads(candidate.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue
+        if isinstance(doc, dict) and doc.get("format") == JSON_FORMAT:
+            found.append(candidate)
+    if not found:
+        raise ValueError(f"{path}: holds no cuboidlib result (no JSON file with \"format\": \"{JSON_FORMAT}\")")
+    return found
+
+
+def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray | None]:
+    from .io import read_point_cloud
+
+    cuboids, meta = read_cuboids_json(json_path)
+    points, labels = np.zeros((0, 3)), None
+    if meta.get("points_file"):
+        cloud = read_point_cloud(json_path.parent / meta["points_file"])
+        points, labels = cloud.points, cloud.labels
+    title = f"{meta.get('source') or json_path.stem}: {meta['num_existing']} of {meta['num_cuboids']} cuboids"
+    return title, cuboids, points, labels
+
+
+def write_view_html(
+    result: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    max_points: int = 4000,
+    cols: int = 4,
+) -> Path:
+    """A self-contained HTML page (plotly.js embedded, opens offline in any browser) of results.
+
+    result: a result JSON file, or a folder holding one or more (as written by :func:`write_result`
+    or ``cuboidlib fit / abstract / generate / interpolate``). One result is drawn with
+    :func:`cuboidlib.viz.plot_cuboids_plotly` (points coloured by cuboid, translucent cuboids, a
+    legend to toggle each cuboid), several as a grid (:func:`cuboidlib.viz.plot_cuboids_plotly_grid`).
+    out: the HTML file (default: ``view.html`` in the folder, or next to the JSON file).
+    Returns the path written.
+    """
+    from .viz import plot_cuboids_plotly, plot_cuboids_plotly_grid
+
+    source = Path(result)
+    jsons = _result_jsons(source)
+    items = [_result_item(p) for p in jsons]
+    if len(items) == 1:
+        title, cuboids, points, labels = items[0]
+        fig = plot_cuboids_plotly(points, labels, cuboids, max_points=max_points, title=title, width=900, height=760)
+    else:
+        fig = plot_cuboids_plotly_grid([(p, lab, c) for _, c, p, lab in items], titles=[t for t, *_ in items],
+                                       cols=cols, max_points=max(1, max_points // len(items)))
+    out = Path(out) if out is not None else (source if source.is_dir() else source.parent) / "view.html"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.write_html(str(out), include_plotlyjs=True, full_html=True)
+    return out

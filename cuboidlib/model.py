@@ -1,0 +1,789 @@
+"""The network of the paper (Sec. 3.1-3.3, Fig. 3): feature embedding, shape abstraction, segmentation.
+
+Shapes (batch-first): points (B, N, 3); cuboid centers (B, M, 3), unit quaternions (B, M, 4) in
+(w, x, y, z) order, half sizes (B, M, 3); allocation W (B, N, M), softmax over the last axis (over
+cuboids), i.e. the transpose of the paper's W_{m,n}.
+
+Building blocks, named after the paper:
+
+* :class:`EdgeConv` (the layers of E_pp, [DGCNN]), :class:`GlobalFeature` (shared layer + max-pool),
+  :class:`FeatureEmbedding` (E_pp, global feature and the VAE head predicting mu and log-variance), Sec. 3.1;
+* :class:`ShapeAbstraction` (E_cb, E_cf and the cuboid decoder D_cp = :class:`CuboidDecoder`), Sec. 3.2;
+* :class:`CuboidSegmentation` (affinity and point-to-cuboid allocation, Eq. (2)-(3)), Sec. 3.3;
+* :class:`CuboidAbstractionNet` (the whole network, configured by :class:`ModelConfig`).
+
+Speed. EdgeConv and the global layer dominate the cost of a training step. They compute exactly
+the functions of the straightforward implementation (``reference_forward``: the explicit
+(B, 2C, N, k) edge tensor, 1x1 convolutions, BatchNorm2d, LeakyReLU, max over neighbours) but
+(1) the first 1x1 convolution of the edge feature [x_j - x_i, x_i] is linear, so it is computed
+once per point and gathered, (2) LeakyReLU and the per-channel affine map of BatchNorm are monotone,
+so the max over neighbours (or points) is taken before them (the min where the BatchNorm scale is
+negative), and (3) the per-edge part of EdgeConv runs in chunks of points with a hand-written
+backward that recomputes the chunk instead of storing (B, N, k, C) tensors. BatchNorm still uses the
+statistics of all edges (or points), as in the reference. Tests check values and gradients against
+``reference_forward`` in float64. ``benchmarks/bench_model.py`` times a training step of both. The
+chunked EdgeConv runs many small multi-threaded operations: on a CPU whose cores are already busy
+with other work, ``torch.set_num_threads(1)`` avoids threads waiting for each other.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ._checks import as_float_tensor, check_finite, check_shape
+
+__all__ = [
+    "ModelConfig",
+    "knn_indices",
+    "EdgeConv",
+    "GlobalFeature",
+    "FeatureEmbedding",
+    "CuboidDecoder",
+    "ShapeAbstraction",
+    "CuboidSegmentation",
+    "CuboidPrediction",
+    "ModelOutput",
+    "CuboidAbstractionNet",
+    "reparameterize",
+]
+
+# Edges processed at once by the chunked EdgeConv: small enough for a chunk's (edges, channels)
+# tensors to stay in the CPU cache, large enough for matrix products to run at full speed.
+_EDGES_PER_CHUNK = 1 << 14
+# Entries of a distance-matrix block in knn_indices (16 MiB in float32).
+_KNN_BLOCK = 1 << 22
+
+
+# ----------------------------------------------------------------------------------------------
+# Configuration
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Sizes of :class:`CuboidAbstractionNet`. The defaults are the paper's (Sec. 3.1-3.3).
+
+    num_cuboids: M, the number of cuboids predicted per shape.
+    k: neighbours of each point in the EdgeConv graph, the point itself included.
+    edge_dims: output width of each EdgeConv layer of E_pp (both 1x1 layers of a block have it);
+        the point feature f^p has sum(edge_dims) channels (paper: 64 + 64 = 128).
+    global_dim: width of the global feature f^g (paper: 1024).
+    latent_dim: size of the latent code z (paper: 512).
+    cuboid_code_dim: width of the one-hot cuboid code embedding E_cb (paper: 64).
+    cuboid_feature_dims: widths of the layers of E_cf; the last one is the cuboid feature f^c
+        (paper: 128; the public code's hidden layer has 256).
+    exist_hidden_dim: hidden width of the existence head of D_cp (public code: 32).
+    seg_dim: width of g^p and g^c in the segmentation branch (paper: 64).
+    attention_scale: divide the affinity A_mn = g^c_m . g^p_n by sqrt(seg_dim) before the softmax,
+        as the public code does; the paper's Eq. (2) has no scale (default False).
+    negative_slope: slope of every LeakyReLU (public code: 0.2).
+
+    ``to_dict`` / ``from_dict`` convert to and from a dict of plain JSON types (for checkpoints).
+    """
+
+    num_cuboids: int = 16
+    k: int = 20
+    edge_dims: tuple[int, ...] = (64, 64)
+    global_dim: int = 1024
+    latent_dim: int = 512
+    cuboid_code_dim: int = 64
+    cuboid_feature_dims: tuple[int, ...] = (256, 128)
+    exist_hidden_dim: int = 32
+    seg_dim: int = 64
+    attention_scale: bool = False
+    negative_slope: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("edge_dims", "cuboid_feature_dims"):
+            value = getattr(self, name)
+            if isinstance(value, (list, tuple)):
+                object.__setattr__(self, name, tuple(value))
+        counts = ("num_cuboids", "k", "global_dim", "latent_dim", "cuboid_code_dim", "exist_hidden_dim", "seg_dim")
+        for name in counts:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"ModelConfig.{name} must be a positive integer, got {value!r}")
+        for name in ("edge_dims", "cuboid_feature_dims"):
+            value = getattr(self, name)
+            if (
+                not isinstance(value, tuple)
+                or not value
+                or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in value)
+            ):
+                raise ValueError(
+                    f"ModelConfig.{name} must be a non-empty sequence of positive integers, got {value!r}"
+                )
+        if not isinstance(self.attention_scale, bool):
+            raise ValueError(f"ModelConfig.attention_scale must be True or False, got {self.attention_scale!r}")
+        slope = self.negative_slope
+        if isinstance(slope, bool) or not isinstance(slope, (int, float)) or not 0.0 <= slope < 1.0:
+            raise ValueError(f"ModelConfig.negative_slope must be a number in [0, 1), got {slope!r}")
+        object.__setattr__(self, "negative_slope", float(slope))
+
+    @classmethod
+    def small(cls, **overrides) -> "ModelConfig":
+        """A narrow model for quick CPU experiments (same structure, about 17x fewer parameters)."""
+        sizes = dict(
+            k=16,
+            edge_dims=(32, 32),
+            global_dim=256,
+            latent_dim=64,
+            cuboid_code_dim=32,
+            cuboid_feature_dims=(128, 64),
+            exist_hidden_dim=16,
+            seg_dim=32,
+        )
+        sizes.update(overrides)
+        return cls(**sizes)
+
+    @property
+    def point_feature_dim(self) -> int:
+        """Channels of the point feature f^p (concatenation of the EdgeConv outputs)."""
+        return sum(self.edge_dims)
+
+    def to_dict(self) -> dict:
+        """The configuration as a dict of JSON types (tuples become lists)."""
+        out = dataclasses.asdict(self)
+        for name in ("edge_dims", "cuboid_feature_dims"):
+            out[name] = list(out[name])
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ModelConfig":
+        """Inverse of :meth:`to_dict`; unknown keys are an error, missing keys take the defaults."""
+        if not isinstance(data, dict):
+            raise TypeError(f"ModelConfig.from_dict expects a dict, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"ModelConfig.from_dict: unknown key(s) {unknown}; known keys are {sorted(known)}")
+        return cls(**data)
+
+
+# ----------------------------------------------------------------------------------------------
+# Helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def knn_indices(x: torch.Tensor, k: int) -> torch.Tensor:
+    """Indices of the k nearest neighbours of every point in its own cloud, the point itself included.
+
+    x: (B, N, C) coordinates or features (Euclidean distance in C dimensions). Returns (B, N, k)
+    int64 indices into dim 1, in no particular order; each row contains its own index. No gradient
+    flows through the choice of neighbours. The squared distances are computed block-wise as
+    |x_j|^2 - 2 x_i . x_j (the |x_i|^2 term is the same for a whole row, so it does not change the
+    ranking) and the smallest k are kept with ``topk``.
+    """
+    check_shape(x, ("B", "N", "C"), "x")
+    batch, n, _ = x.shape
+    if not 1 <= k <= n:
+        raise ValueError(f"k must be in [1, N] = [1, {n}], got k = {k}")
+    x = x.detach()
+    out = torch.empty(batch, n, k, dtype=torch.long, device=x.device)
+    # torch.topk on the CPU switches from a selection algorithm to a faster partial sort on rows
+    # of at least 64 k entries; shorter rows are padded with +inf, which is never selected.
+    width = max(n, 64 * k) if x.device.type == "cpu" else n
+    rows = max(1, min(n, _KNN_BLOCK // width))
+    block = x.new_full((rows, width), math.inf)
+    sq = (x * x).sum(-1)
+    with torch.no_grad():
+        for b in range(batch):
+            for r0 in range(0, n, rows):
+                r1 = min(n, r0 + rows)
+                d = block[: r1 - r0]
+                torch.addmm(sq[b].unsqueeze(0), x[b, r0:r1], x[b].T, alpha=-2.0, out=d[:, :n])
+                own = torch.arange(r0, r1, device=x.device)
+                d[own - r0, own] = -math.inf  # the point itself is always one of its neighbours
+                out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=False).indices
+    return out
+
+
+def _uses_batch_stats(bn: nn.BatchNorm1d) -> bool:
+    """Whether ``bn`` normalises with batch statistics (training) or running ones (evaluation)."""
+    return bn.training or bn.running_mean is None
+
+
+def _next_momentum(bn: nn.BatchNorm1d) -> float:
+    """Count one more training batch in ``bn`` and return its running-average factor (as nn.BatchNorm)."""
+    bn.num_batches_tracked.add_(1)
+    return bn.momentum if bn.momentum is not None else 1.0 / float(bn.num_batches_tracked)
+
+
+def _update_running_stats(bn: nn.BatchNorm1d, mean: torch.Tensor, var: torch.Tensor, count: int) -> None:
+    """Update ``bn``'s running statistics as nn.BatchNorm does, from the batch mean and biased variance."""
+    if not bn.training or bn.running_mean is None:
+        return
+    with torch.no_grad():
+        momentum = _next_momentum(bn)
+        bn.running_mean.mul_(1 - momentum).add_(mean.detach(), alpha=momentum)
+        unbiased = var.detach() * (count / max(count - 1, 1))
+        bn.running_var.mul_(1 - momentum).add_(unbiased, alpha=momentum)
+
+
+def _scale_sign(gamma: torch.Tensor) -> torch.Tensor:
+    """+1 where the BatchNorm scale is >= 0, else -1 (the max over a set commutes with a monotone map)."""
+    return torch.where(gamma.detach() >= 0, 1.0, -1.0).to(gamma.dtype)
+
+
+def reparameterize(
+    mu: torch.Tensor, logvar: torch.Tensor, generator: torch.Generator | None = None
+) -> torch.Tensor:
+    """z = mu + sigma * n with sigma = exp(logvar / 2) and n ~ N(0, I), Eq. (1).
+
+    mu, logvar: (B, D). The paper writes sigma for the standard deviation in Eq. (1) and for the
+    log-variance in its KL loss (Eq. (8)); the network predicts the log-variance.
+    """
+    noise = torch.randn(mu.shape, generator=generator, dtype=mu.dtype, device=mu.device)
+    return mu + noise * torch.exp(0.5 * logvar)
+
+
+# ----------------------------------------------------------------------------------------------
+# EdgeConv
+# ----------------------------------------------------------------------------------------------
+
+
+class _EdgeMLP(torch.autograd.Function):
+    """Per-edge part of EdgeConv, computed chunk by chunk over points, and its exact gradient.
+
+    Inputs (R = B * N rows, E = R * k edges):
+        P, Q (R, C1): per-point projections; the first layer's value on edge (i, j) is u = P_j + Q_i.
+        nbr (R, k): global row index j of each neighbour of row i.
+        gamma1, beta1 (C1): BatchNorm of u;  mean1, var1 (C1): its mean and biased variance.
+        W2 (C2, C1): second layer (its rows already multiplied by the sign of BatchNorm-2's scale).
+        batch_stats: whether mean1, var1 are the batch statistics of u (training), so that the
+            gradient flows through them too, or fixed running statistics (evaluation).
+        eps, slope: BatchNorm epsilon, LeakyReLU slope;  rows: points per chunk.
+    Per edge: v = LeakyReLU(gamma1 (u - mean1) / sqrt(var1 + eps) + beta1), h = W2 v.
+    Outputs: hmax (R, C2) = max of h over the k neighbours, and the mean and biased variance of h
+    over all E edges (C2 each), from which the caller applies BatchNorm-2 and LeakyReLU to hmax.
+    The gradient of the max goes to one maximising edge (as torch.max), the one that was kept
+    in the forward pass. Only (R, C) tensors are kept for the backward pass, which recomputes each
+    chunk's edges.
+    """
+
+    @staticmethod
+    def forward(ctx, P, Q, nbr, gamma1, beta1, W2, mean1, var1, batch_stats, eps, slope, rows):
+        R, C1 = P.shape
+        k = nbr.shape[1]
+        C2 = W2.shape[0]
+        rstd1 = torch.rsqrt(var1 + eps)
+        scale1 = gamma1 * rstd1
+        P1 = P * scale1  # u -> gamma1 (u - mean1) rstd1 + beta1 = P1_j + Q1_i
+        Q1 = Q * scale1 + (beta1 - scale1 * mean1)
+        hmax = P.new_empty(R, C2)
+        harg = torch.empty(R, C2, dtype=torch.uint8 if k <= 256 else torch.long, device=P.device)
+        position = torch.arange(k, dtype=P.dtype, device=P.device).view(1, k, 1)
+        # The value of h on an edge at the BatchNorm mean, a typical value of h: the chunks produce
+        # h - shift, whose sums give an accurate variance.
+        shift = W2 @ F.leaky_relu(beta1, slope)
+        s1 = P.new_zeros(C2)
+        s2 = P.new_zeros(C2)
+        for r0 in range(0, R, rows):
+            r1 = min(R, r0 + rows)
+            v = P1.index_select(0, nbr[r0:r1].reshape(-1)).view(r1 - r0, k, C1)
+            F.leaky_relu_(v.add_(Q1[r0:r1].unsqueeze(1)), slope)
+            hc = torch.addmm(-shift, v.view(-1, C1), W2.T)  # h - shift, (edges, C2)
+            s1 += hc.sum(0)
+            hc3 = hc.view(r1 - r0, k, C2)
+            top = torch.amax(hc3, dim=1, keepdim=True)
+            hmax[r0:r1] = top.squeeze(1)
+            # index of a maximising neighbour (the last one if several tie): 1 + sign(h - max) is 1
+            # at the maxima and 0 elsewhere (float arithmetic is much faster here than comparisons)
+            at_max = torch.sub(hc3, top).sign_().add_(1).mul_(position)
+            harg[r0:r1] = torch.amax(at_max, dim=1)
+            s2 += hc.mul_(hc).sum(0)
+        hmax += shift
+        n_edges = R * k
+        m = s1 / n_edges
+        h_mean = shift + m
+        h_var = (s2 / n_edges - m * m).clamp_min(0)
+        ctx.save_for_backward(P, Q, nbr, gamma1, beta1, W2, mean1, rstd1, harg, h_mean)
+        ctx.batch_stats = batch_stats
+        ctx.slope = slope
+        ctx.rows = rows
+        return hmax, h_mean, h_var
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, g_hmax, g_hmean, g_hvar):
+        P, Q, nbr, gamma1, beta1, W2, mean1, rstd1, harg, h_mean = ctx.saved_tensors
+        slope, rows = ctx.slope, ctx.rows
+        R, C1 = P.shape
+        k = nbr.shape[1]
+        C2 = W2.shape[0]
+        n_edges = R * k
+        P_hat = P * rstd1  # normalised u: xhat = P_hat_j + Q_hat_i
+        Q_hat = (Q - mean1) * rstd1
+        g_hmax = g_hmax.contiguous()
+        g_W2 = torch.zeros_like(W2)
+        g_rowsum = torch.empty_like(Q)  # per point i: sum over its k edges of dL/dz
+        g_scatter = torch.zeros_like(P)  # per point j: sum over the edges (i, j) of dL/dz
+        x_scatter = torch.zeros_like(P) if ctx.batch_stats else None  # the same for xhat
+        # dL/dh = dL/dmean / E + dL/dvar * 2 (h - mean) / E, plus dL/dhmax on the maximising edge
+        c_var = g_hvar * (2.0 / n_edges)
+        c_mean = g_hmean / n_edges - c_var * h_mean
+        W2_var = W2 * c_var.unsqueeze(1)
+        for r0 in range(0, R, rows):
+            r1 = min(R, r0 + rows)
+            idx = nbr[r0:r1].reshape(-1)
+            xhat = P_hat.index_select(0, idx).view(r1 - r0, k, C1).add_(Q_hat[r0:r1].unsqueeze(1))
+            if x_scatter is not None:
+                x_scatter.index_add_(0, idx, xhat.view(-1, C1))
+            v = F.leaky_relu_(torch.addcmul(beta1, xhat, gamma1), slope).view(-1, C1)
+            gh = torch.addmm(c_mean, v, W2_var.T)  # c_mean + c_var * h
+            gh.view(r1 - r0, k, C2).scatter_add_(1, harg[r0:r1].long().unsqueeze(1), g_hmax[r0:r1].unsqueeze(1))
+            g_W2.addmm_(gh.T, v)
+            # LeakyReLU backward from its output (v > 0 exactly where its input is > 0)
+            gz = torch.ops.aten.leaky_relu_backward(gh @ W2, v, slope, True)
+            g_rowsum[r0:r1] = gz.view(r1 - r0, k, C1).sum(1)
+            g_scatter.index_add_(0, idx, gz)
+        # Sums over all edges, from the per-point sums: sum dL/dz and sum dL/dz * xhat.
+        sum_gz = g_rowsum.sum(0)
+        sum_gzx = (g_scatter * P_hat).sum(0) + (g_rowsum * Q_hat).sum(0)
+        # BatchNorm backward, dL/du = gamma rstd (dL/dz - mean(dL/dz) - xhat mean(dL/dz xhat)), summed
+        # over the k edges (i, .) of each point (for Q) and over the edges (., j) ending at it (for P).
+        scale1 = gamma1 * rstd1
+        if ctx.batch_stats:
+            mean_gz = sum_gz / n_edges
+            mean_gzx = sum_gzx / n_edges
+            in_degree = torch.bincount(nbr.reshape(-1), minlength=R).to(P.dtype).unsqueeze(1)
+            x_rowsum = k * Q_hat + F.embedding_bag(nbr, P_hat, mode="sum")
+            g_Q = scale1 * (g_rowsum - k * mean_gz - x_rowsum * mean_gzx)
+            g_P = scale1 * (g_scatter - in_degree * mean_gz - x_scatter * mean_gzx)
+        else:
+            g_Q = scale1 * g_rowsum
+            g_P = scale1 * g_scatter
+        return g_P, g_Q, None, sum_gzx, sum_gz, g_W2, None, None, None, None, None, None
+
+
+class EdgeConv(nn.Module):
+    """One EdgeConv layer [DGCNN] of the point-feature encoder E_pp (Sec. 3.1).
+
+    For every point i and each of its k nearest neighbours j (itself included) the edge feature
+    [x_j - x_i, x_i] goes through two shared 1x1 layers (``conv1``: 2 C_in -> C_out and ``conv2``:
+    C_out -> C_out, no bias), each followed by BatchNorm over all B*N*k edges and LeakyReLU; the
+    output is the max over the k edges. ``forward`` computes this without building the edge tensor
+    (see the module docstring); ``reference_forward`` builds it and gives the same values and
+    gradients. Both update the BatchNorm running statistics in training mode.
+
+    edges_per_chunk: how many edges ``forward`` processes at once (speed and memory only).
+    """
+
+    def __init__(
+        self,
+        in_dim: int,
+        out_dim: int,
+        k: int,
+        negative_slope: float = 0.2,
+        edges_per_chunk: int = _EDGES_PER_CHUNK,
+    ):
+        super().__init__()
+        self.in_dim, self.out_dim, self.k = in_dim, out_dim, k
+        self.negative_slope = negative_slope
+        self.edges_per_chunk = edges_per_chunk
+        self.conv1 = nn.Linear(2 * in_dim, out_dim, bias=False)
+        self.bn1 = nn.BatchNorm1d(out_dim)
+        self.conv2 = nn.Linear(out_dim, out_dim, bias=False)
+        self.bn2 = nn.BatchNorm1d(out_dim)
+
+    def _neighbours(self, x: torch.Tensor, neighbours: torch.Tensor | None) -> torch.Tensor:
+        if neighbours is None:
+            return knn_indices(x, self.k)
+        check_shape(neighbours, (x.shape[0], x.shape[1], self.k), "neighbours")
+        return neighbours
+
+    def forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
+        """x: (B, N, C_in) -> (B, N, C_out). neighbours: (B, N, k) indices, default kNN of x."""
+        nbr = self._neighbours(x, neighbours)
+        batch, n, _ = x.shape
+        rows, k = batch * n, self.k
+        W_a, W_b = self.conv1.weight[:, : self.in_dim], self.conv1.weight[:, self.in_dim :]
+        # conv1 [x_j - x_i, x_i] = W_a (x_j - c) + (W_b x_i - W_a (x_i - c)) = P_j + Q_i for any c; c =
+        # the cloud's mean keeps P and Q small, so that little precision is lost when they cancel.
+        centred = x - x.detach().mean(dim=1, keepdim=True)
+        P = (centred @ W_a.T).reshape(rows, self.out_dim)
+        Q = (x @ W_b.T).reshape(rows, self.out_dim) - P
+        offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
+        flat_nbr = (nbr + offsets).reshape(rows, k)
+
+        if _uses_batch_stats(self.bn1):
+            with torch.no_grad():
+                mean1, var1 = self._edge_stats(P.detach(), Q.detach(), flat_nbr)
+            _update_running_stats(self.bn1, mean1, var1, rows * k)
+        else:
+            mean1, var1 = self.bn1.running_mean, self.bn1.running_var
+
+        sign = _scale_sign(self.bn2.weight)
+        hmax, h_mean, h_var = _EdgeMLP.apply(
+            P,
+            Q,
+            flat_nbr,
+            self.bn1.weight,
+            self.bn1.bias,
+            self.conv2.weight * sign.unsqueeze(1),
+            mean1,
+            var1,
+            _uses_batch_stats(self.bn1),
+            self.bn1.eps,
+            self.negative_slope,
+            max(1, self.edges_per_chunk // k),
+        )
+        if _uses_batch_stats(self.bn2):
+            _update_running_stats(self.bn2, sign * h_mean, h_var, rows * k)
+        else:
+            h_mean, h_var = sign * self.bn2.running_mean, self.bn2.running_var
+        y = (hmax - h_mean) * (self.bn2.weight * sign) * torch.rsqrt(h_var + self.bn2.eps) + self.bn2.bias
+        return F.leaky_relu(y, self.negative_slope).view(batch, n, self.out_dim)
+
+    @staticmethod
+    def _edge_stats(P: torch.Tensor, Q: torch.Tensor, nbr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and biased variance over all edges of u = P_j + Q_i, from per-point sums.
+
+        With Qc = Q - mean and S_i = sum of P_j over the neighbours j of i (an embedding bag):
+        sum over edges of (u - mean)^2 = sum_j indegree_j P_j^2 + k sum_i Qc_i^2 + 2 sum_i Qc_i S_i.
+        The terms can be much larger than their sum (P and Q nearly cancel on close neighbours), so
+        the sums are taken in float64, where that cancellation costs nothing visible.
+        """
+        rows, k = nbr.shape
+        P64, Q64 = P.double(), Q.double()
+        in_degree = torch.bincount(nbr.reshape(-1), minlength=rows).to(P64.dtype)
+        mean = (in_degree @ P64 + k * Q64.sum(0)) / (rows * k)
+        Qc = Q64 - mean
+        S = F.embedding_bag(nbr, P64, mode="sum")
+        sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * (Qc * S).sum(0)
+        return mean.to(P.dtype), (sq / (rows * k)).clamp_min(0).to(P.dtype)
+
+    def reference_forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
+        """The straightforward EdgeConv on the explicit (B, 2 C_in, N, k) edge tensor (tests, benchmarks)."""
+        nbr = self._neighbours(x, neighbours)
+        batch, n, c = x.shape
+        offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
+        x_j = x.reshape(batch * n, c)[(nbr + offsets).reshape(-1)].view(batch, n, self.k, c)
+        x_i = x.unsqueeze(2).expand(batch, n, self.k, c)
+        edges = torch.cat([x_j - x_i, x_i], dim=-1).permute(0, 3, 1, 2)  # (B, 2C, N, k)
+        h = edges
+        for conv, bn in ((self.conv1, self.bn1), (self.conv2, self.bn2)):
+            h = F.conv2d(h, conv.weight[:, :, None, None])
+            momentum = _next_momentum(bn) if bn.training and bn.running_mean is not None else 0.0
+            h = F.batch_norm(h, bn.running_mean, bn.running_var, bn.weight, bn.bias, bn.training, momentum, bn.eps)
+            h = F.leaky_relu(h, self.negative_slope)
+        return h.max(dim=-1).values.transpose(1, 2)  # (B, N, C_out)
+
+
+# ----------------------------------------------------------------------------------------------
+# Global feature and feature embedding (Sec. 3.1)
+# ----------------------------------------------------------------------------------------------
+
+
+class GlobalFeature(nn.Module):
+    """Shared fully connected layer + BatchNorm + LeakyReLU applied to every point, then max-pooled.
+
+    (B, N, C_in) point features -> (B, C_out) global feature f^g (Sec. 3.1, as in PointNet).
+    ``forward`` takes the max over points of the linear layer's output before BatchNorm and
+    LeakyReLU (which are monotone per channel; the min where the scale is negative) and computes the
+    BatchNorm statistics from the mean and covariance of the input, so the (B, N, C_out) activations
+    are never stored; ``reference_forward`` is the plain computation. Same values and gradients.
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, negative_slope: float = 0.2):
+        super().__init__()
+        self.linear = nn.Linear(in_dim, out_dim, bias=False)
+        self.bn = nn.BatchNorm1d(out_dim)
+        self.negative_slope = negative_slope
+
+    def forward(self, f: torch.Tensor) -> torch.Tensor:
+        batch, n, c = f.shape
+        sign = _scale_sign(self.bn.weight)
+        W = self.linear.weight * sign.unsqueeze(1)
+        if _uses_batch_stats(self.bn):
+            flat = f.reshape(batch * n, c)
+            mean_f = flat.mean(0)
+            centred = flat - mean_f
+            cov = centred.T @ centred / (batch * n)
+            mean = W @ mean_f
+            var = ((W @ cov) * W).sum(1)
+            _update_running_stats(self.bn, sign * mean, var, batch * n)
+        else:
+            mean, var = sign * self.bn.running_mean, self.bn.running_var
+        with torch.no_grad():  # the point where each channel is largest: (B, C_out) row indices
+            arg = torch.stack([(W @ f[b].T).argmax(1) for b in range(batch)])
+            arg += torch.arange(batch, device=f.device).unsqueeze(1) * n
+        chosen = f.reshape(batch * n, c).index_select(0, arg.view(-1)).view(batch, -1, c)  # (B, C_out, C_in)
+        hmax = (chosen * W).sum(-1)
+        y = (hmax - mean) * (self.bn.weight * sign) * torch.rsqrt(var + self.bn.eps) + self.bn.bias
+        return F.leaky_relu(y, self.negative_slope)
+
+    def reference_forward(self, f: torch.Tensor) -> torch.Tensor:
+        h = self.linear(f).transpose(1, 2)  # (B, C_out, N)
+        h = self.bn(h)
+        return F.leaky_relu(h, self.negative_slope).max(dim=-1).values
+
+
+class FeatureEmbedding(nn.Module):
+    """E_pp (EdgeConv layers), the global feature and the VAE head, Sec. 3.1.
+
+    forward(points (B, N, 3)) -> (point_features (B, N, sum(edge_dims)), global_feature
+    (B, global_dim), mu (B, latent_dim), logvar (B, latent_dim)). The first EdgeConv uses the kNN
+    graph of the 3-D points, each later one recomputes it in the previous layer's feature space.
+    ``reference=True`` uses the straightforward EdgeConv and global layer (same results, slower).
+    """
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        dims = (3,) + config.edge_dims
+        self.edge_convs = nn.ModuleList(
+            EdgeConv(dims[i], dims[i + 1], config.k, config.negative_slope) for i in range(len(config.edge_dims))
+        )
+        self.global_feature = GlobalFeature(config.point_feature_dim, config.global_dim, config.negative_slope)
+        self.fc_mu = nn.Linear(config.global_dim, config.latent_dim)
+        self.fc_logvar = nn.Linear(config.global_dim, config.latent_dim)
+
+    def forward(
+        self, points: torch.Tensor, reference: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        h, features = points, []
+        for conv in self.edge_convs:
+            h = conv.reference_forward(h) if reference else conv(h)
+            features.append(h)
+        point_features = torch.cat(features, dim=-1)
+        if reference:
+            global_feature = self.global_feature.reference_forward(point_features)
+        else:
+            global_feature = self.global_feature(point_features)
+        return point_features, global_feature, self.fc_mu(global_feature), self.fc_logvar(global_feature)
+
+
+# ----------------------------------------------------------------------------------------------
+# Shape abstraction (Sec. 3.2)
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class CuboidPrediction:
+    """Cuboid parameters predicted by D_cp (Sec. 3.2) for B shapes and M cuboids.
+
+    centers (B, M, 3) in (-1, 1) (tanh); quaternions (B, M, 4) unit, (w, x, y, z); half_sizes
+    (B, M, 3) in (0, 1) (sigmoid); exist_logits (B, M), the existence delta_m = sigmoid(logit);
+    cuboid_features (B, M, C) the cuboid features f^c.
+    """
+
+    centers: torch.Tensor
+    quaternions: torch.Tensor
+    half_sizes: torch.Tensor
+    exist_logits: torch.Tensor
+    cuboid_features: torch.Tensor
+
+    @property
+    def exist_probs(self) -> torch.Tensor:
+        """Existence probabilities delta_m = sigmoid(exist_logits), (B, M)."""
+        return torch.sigmoid(self.exist_logits)
+
+
+class CuboidDecoder(nn.Module):
+    """D_cp: cuboid feature f^c (..., C) -> centre, quaternion, half size and existence logit (Sec. 3.2).
+
+    Linear heads: half sizes = sigmoid (in (0, 1)), quaternion normalised to unit length, centre =
+    tanh (in (-1, 1)); existence = a logit from a small MLP (C -> hidden -> 1). As the paper says
+    (Sec. 3.4.5), the biases of the size and translation heads start at 0 and the quaternion
+    head's at [1, 0, 0, 0], so training starts from axis-aligned cuboids of half size 0.5 at the
+    origin.
+    """
+
+    def __init__(self, in_dim: int, exist_hidden_dim: int = 32, negative_slope: float = 0.2):
+        super().__init__()
+        self.size = nn.Linear(in_dim, 3)
+        self.rotation = nn.Linear(in_dim, 4)
+        self.translation = nn.Linear(in_dim, 3)
+        self.existence = nn.Sequential(
+            nn.Linear(in_dim, exist_hidden_dim), nn.LeakyReLU(negative_slope), nn.Linear(exist_hidden_dim, 1)
+        )
+        with torch.no_grad():
+            self.size.bias.zero_()
+            self.translation.bias.zero_()
+            self.rotation.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+
+    def forward(self, cuboid_features: torch.Tensor) -> CuboidPrediction:
+        return CuboidPrediction(
+            centers=torch.tanh(self.translation(cuboid_features)),
+            quaternions=F.normalize(self.rotation(cuboid_features), dim=-1),
+            half_sizes=torch.sigmoid(self.size(cuboid_features)),
+            exist_logits=self.existence(cuboid_features).squeeze(-1),
+            cuboid_features=cuboid_features,
+        )
+
+
+class ShapeAbstraction(nn.Module):
+    """Latent code z (B, latent_dim) -> M cuboids (Sec. 3.2).
+
+    For cuboid m, the one-hot code v_m goes through E_cb (a bias-free linear layer + LeakyReLU, a
+    learned 64-d code per cuboid), is concatenated with z and goes through E_cf (fully connected
+    layers with LeakyReLU) to the cuboid feature f^c_m, which D_cp decodes. E_cb, E_cf and D_cp are
+    shared by all cuboids; only the one-hot code tells them apart. (The public code's E_cf layers
+    have no bias; here they are ordinary fully connected layers with a bias.)
+    """
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        self.num_cuboids = config.num_cuboids
+        slope = config.negative_slope
+        self.E_cb = nn.Sequential(
+            nn.Linear(config.num_cuboids, config.cuboid_code_dim, bias=False), nn.LeakyReLU(slope)
+        )
+        layers: list[nn.Module] = []
+        width = config.latent_dim + config.cuboid_code_dim
+        for out in config.cuboid_feature_dims:
+            layers += [nn.Linear(width, out), nn.LeakyReLU(slope)]
+            width = out
+        self.E_cf = nn.Sequential(*layers)
+        self.D_cp = CuboidDecoder(width, config.exist_hidden_dim, slope)
+
+    def forward(self, z: torch.Tensor) -> CuboidPrediction:
+        batch, m = z.shape[0], self.num_cuboids
+        codes = self.E_cb(torch.eye(m, dtype=z.dtype, device=z.device))  # (M, code)
+        joint = torch.cat([z.unsqueeze(1).expand(batch, m, -1), codes.expand(batch, m, -1)], dim=-1)
+        return self.D_cp(self.E_cf(joint))
+
+
+# ----------------------------------------------------------------------------------------------
+# Cuboid-associated segmentation (Sec. 3.3)
+# ----------------------------------------------------------------------------------------------
+
+
+class CuboidSegmentation(nn.Module):
+    """Point-to-cuboid allocation from point and cuboid features, Eq. (2)-(3) (Sec. 3.3).
+
+    g^p = point features reduced to seg_dim, g^c = cuboid features reduced to seg_dim (bias-free
+    linear layers); affinity A[b, n, m] = g^c_m . g^p_n (Eq. (2), stored (B, N, M)); W = softmax of
+    A over the M cuboids (Eq. (3)); argmax over M gives the segmentation. ``attention_scale=True``
+    divides A by sqrt(seg_dim) as the public code does (the paper has no scale).
+    """
+
+    def __init__(self, point_dim: int, cuboid_dim: int, seg_dim: int = 64, attention_scale: bool = False):
+        super().__init__()
+        self.point_proj = nn.Linear(point_dim, seg_dim, bias=False)
+        self.cuboid_proj = nn.Linear(cuboid_dim, seg_dim, bias=False)
+        self.scale = 1.0 / math.sqrt(seg_dim) if attention_scale else 1.0
+
+    def forward(
+        self, point_features: torch.Tensor, cuboid_features: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, N, C_p), (B, M, C_c) -> affinity logits (B, N, M), allocation W (B, N, M)."""
+        affinity = self.point_proj(point_features) @ self.cuboid_proj(cuboid_features).transpose(1, 2)
+        if self.scale != 1.0:
+            affinity = affinity * self.scale
+        return affinity, torch.softmax(affinity, dim=-1)
+
+
+# ----------------------------------------------------------------------------------------------
+# The whole network
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class ModelOutput(CuboidPrediction):
+    """Everything :class:`CuboidAbstractionNet` predicts for a batch of B point clouds of N points.
+
+    Cuboids as in :class:`CuboidPrediction` (M per shape); W (B, N, M) the allocation (rows sum to
+    1); affinity (B, N, M) its logits; mu, logvar (B, latent_dim) the mean and LOG-variance of
+    q(z | points) (the paper's sigma in the KL loss, Eq. (8)); z (B, latent_dim) the code that was
+    decoded; point_features (B, N, C_p) f^p; global_feature (B, global_dim) f^g.
+    """
+
+    W: torch.Tensor
+    affinity: torch.Tensor
+    mu: torch.Tensor
+    logvar: torch.Tensor
+    z: torch.Tensor
+    point_features: torch.Tensor
+    global_feature: torch.Tensor
+
+    @property
+    def segmentation(self) -> torch.Tensor:
+        """Cuboid label of every point, argmax over M of W, (B, N) int64 (Sec. 3.3)."""
+        return self.W.argmax(dim=-1)
+
+
+class CuboidAbstractionNet(nn.Module):
+    """The paper's network (Fig. 3): point cloud -> M cuboids + point-to-cuboid allocation.
+
+    ``forward(points)`` runs the feature embedding (Sec. 3.1), the shape abstraction (Sec. 3.2) and
+    the segmentation (Sec. 3.3). The latent code is sampled with the re-parameterisation of Eq. (1)
+    in training mode and is the mean mu in evaluation mode, unless ``sample_latent`` says otherwise
+    (the public code samples in both). ``encode`` gives (mu, logvar); ``decode(z)`` the cuboids of
+    latent codes (for generation and interpolation).
+    """
+
+    def __init__(self, config: ModelConfig | None = None):
+        super().__init__()
+        self.config = config if config is not None else ModelConfig()
+        cfg = self.config
+        self.embedding = FeatureEmbedding(cfg)
+        self.abstraction = ShapeAbstraction(cfg)
+        self.segmentation = CuboidSegmentation(
+            cfg.point_feature_dim, cfg.cuboid_feature_dims[-1], cfg.seg_dim, cfg.attention_scale
+        )
+
+    def _check_points(self, points) -> torch.Tensor:
+        param = next(self.parameters())
+        points = as_float_tensor(points, "points", dtype=param.dtype, device=param.device)
+        sizes = check_shape(points, ("B", "N", 3), "points")
+        if sizes["B"] == 0:
+            raise ValueError("points is an empty batch (B = 0); at least one point cloud is needed")
+        if sizes["N"] <= self.config.k:
+            raise ValueError(
+                f"points has N = {sizes['N']} points per cloud but the EdgeConv graph needs N > k = "
+                f"{self.config.k}; use more points or a smaller ModelConfig.k"
+            )
+        check_finite(points, "points")
+        return points
+
+    def encode(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """points (B, N, 3) -> mu, logvar (B, latent_dim) of q(z | points) (Sec. 3.1)."""
+        _, _, mu, logvar = self.embedding(self._check_points(points))
+        return mu, logvar
+
+    def decode(self, z: torch.Tensor) -> CuboidPrediction:
+        """Latent codes z (B, latent_dim) -> cuboids and existence logits (Sec. 3.2)."""
+        param = next(self.parameters())
+        z = as_float_tensor(z, "z", dtype=param.dtype, device=param.device)
+        check_shape(z, ("B", self.config.latent_dim), "z")
+        check_finite(z, "z")
+        return self.abstraction(z)
+
+    def forward(
+        self,
+        points: torch.Tensor,
+        sample_latent: bool | None = None,
+        generator: torch.Generator | None = None,
+        reference: bool = False,
+    ) -> ModelOutput:
+        """points (B, N, 3) with N > k -> :class:`ModelOutput`.
+
+        sample_latent: draw z = mu + sigma * n (Eq. (1)) if True, use z = mu if False; None means
+            "sample in training mode only". generator: the source of n (default: torch's global one).
+        reference: use the straightforward EdgeConv and global layer (same results, much slower;
+            for tests and benchmarks).
+        """
+        points = self._check_points(points)
+        point_features, global_feature, mu, logvar = self.embedding(points, reference=reference)
+        if sample_latent is None:
+            sample_latent = self.training
+        z = reparameterize(mu, logvar, generator) if sample_latent else mu
+        cuboids = self.abstraction(z)
+        affinity, W = self.segmentation(point_features, cuboids.cuboid_features)
+        return ModelOutput(
+            **{f.name: getattr(cuboids, f.name) for f in dataclasses.fields(CuboidPrediction)},
+            W=W,
+            affinity=affinity,
+            mu=mu,
+            logvar=logvar,
+            z=z,
+            point_features=point_features,
+            global_feature=global_feature,
+        )

@@ -1,0 +1,779 @@
+"""Training the network (Sec. 3.4.5): configuration, data splits, the training loop, resuming, DDP.
+
+The paper trains each category separately with Adam, learning rate 6e-4 and batch size 32 for 1000
+epochs (Sec. 3.4.5); those are the defaults of :class:`TrainConfig`, which also holds the data, the
+model (:class:`~cuboidlib.model.ModelConfig`) and the loss (:class:`~cuboidlib.losses.LossConfig`)
+and round-trips through JSON. :class:`Trainer` runs the loop and the ``cuboidlib train`` command
+wraps it.
+
+**Data.** A procedural collection (:func:`cuboidlib.shapes.make_collection`) or a folder of point
+cloud / mesh files (read through :class:`cuboidlib.dataset.PointCloudDataset`), held in memory as
+(S, N, 3) tensors and split into train / validation / test by a seeded permutation
+(:func:`split_indices`). Model selection (``best.pt``) uses the validation loss only; the test
+split is never touched during training (``cuboidlib evaluate`` scores it).
+
+**Determinism and exact resume.** Randomness comes from three sources only: the order of the shapes
+(a permutation per epoch seeded by ``(seed, epoch)``, so it needs no saved state), the offsets along
+the normals of the distance of Eq. (5) (one ``torch.Generator``) and the VAE noise of Eq. (1) (a
+second generator). The initial weights come from ``seed``. A checkpoint stores the weights, the Adam
+state, the step and both generator states, so that a run killed at any point and resumed from its
+last checkpoint ends with bitwise the same weights as an uninterrupted run (float32 on the CPU,
+same thread count). Training batches are full batches: an epoch has ``n_train // batch_size`` steps
+(the last incomplete batch of each permutation is skipped).
+
+**Divergence.** After every forward pass the network's outputs and the loss terms are checked, after
+every backward pass the gradients and after every update the weights; a NaN or infinity raises
+:class:`TrainingDiverged` naming the step and the bad terms, and nothing is written, so the last good
+checkpoint stays.
+
+**Several processes.** Started by ``torchrun`` (environment variables ``RANK``, ``WORLD_SIZE``,
+``LOCAL_RANK``), the same entry point initialises a process group (gloo on the CPU, nccl on CUDA),
+wraps the model in ``DistributedDataParallel`` and gives rank r the items r, r + W, r + 2W, ... of
+each global batch of ``batch_size`` shapes (``batch_size`` must be divisible by the number of
+processes W). Gradients are averaged over the processes, so every rank holds the same weights.
+BatchNorm is the plain one, not SyncBatchNorm: in training each rank normalises with the statistics
+of its own shard, and DDP copies rank 0's buffers (the running statistics) to the other ranks at the
+start of every forward pass, so these differ between ranks only by each rank's last update.
+Checkpoints hold rank 0's. Only rank 0 validates and writes files; each rank draws its own sampling
+noise, and a run must be resumed with the number of processes that wrote its checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
+from .losses import LossConfig, total_loss
+from .model import CuboidAbstractionNet, ModelConfig
+from .shapes import CATEGORIES, PART_NAMES
+
+__all__ = [
+    "TrainConfig",
+    "read_config_file",
+    "ShapeSet",
+    "split_indices",
+    "load_shapes",
+    "load_splits",
+    "resolve_device",
+    "validation_loss",
+    "TrainingDiverged",
+    "TrainResult",
+    "Trainer",
+    "LOSS_TERMS",
+]
+
+#: The loss terms logged at every step (Eq. (9) and its four terms), in log-file order.
+LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl")
+#: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
+#: weights a step produces); every other field must equal the checkpoint's.
+RESUMABLE_CHANGES = (
+    "epochs", "max_steps", "max_minutes", "checkpoint_every", "validate_every", "device", "num_threads",
+)
+# Network outputs checked for NaN / inf before the loss is computed.
+_OUTPUTS = ("centers", "quaternions", "half_sizes", "exist_logits", "W", "mu", "logvar")
+# Streams of the seed derivation (see _derive_seed).
+_ORDER, _LOSS, _LATENT, _VALIDATION = range(4)
+
+
+def _derive_seed(*keys: int) -> int:
+    """A 63-bit seed from a tuple of non-negative integers (independent streams for different keys)."""
+    return int(np.random.SeedSequence([int(k) for k in keys]).generate_state(2, np.uint64)[0] >> np.uint64(1))
+
+
+# ----------------------------------------------------------------------------------------------
+# Configuration
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TrainConfig:
+    """Everything a training run depends on. Defaults: the paper's (Sec. 3.4.5 and Sec. 4.1).
+
+    Data:
+        category: procedural category ("chair", "table", "airplane", "animal"); with ``data_dir``
+            it only names the category in logs.
+        n_shapes: shapes in the procedural collection (ignored with ``data_dir``).
+        n_points: points per shape (paper: 4096). For files: a random subset of this size (meshes
+            are sampled with this many points).
+        data_seed: seed of the collection (or of the subsets drawn from files).
+        data_dir: a folder of point-cloud / mesh files to use instead of a procedural collection.
+        split_fractions: (train, validation, test) fractions of the shapes, summing to 1.
+        split_seed: seed of the permutation that assigns shapes to the splits.
+    Model and loss: ``model`` a :class:`ModelConfig` dict, ``loss`` a :class:`LossConfig` dict
+        (either objects or dicts may be given; missing keys take their defaults).
+    Optimisation: Adam with ``lr`` (paper: 6e-4), ``batch_size`` shapes per step (paper: 32, the
+        global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
+        ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time.
+    Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
+        order, loss and VAE sampling), ``device`` ("auto" = CUDA when available, else CPU),
+        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default).
+    """
+
+    category: str = "chair"
+    n_shapes: int = 512
+    n_points: int = 4096
+    data_seed: int = 0
+    data_dir: str | None = None
+    split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
+    split_seed: int = 0
+    model: dict = field(default_factory=lambda: ModelConfig().to_dict())
+    loss: dict = field(default_factory=lambda: LossConfig().to_dict())
+    lr: float = 6e-4
+    batch_size: int = 32
+    epochs: int = 1000
+    max_steps: int | None = None
+    max_minutes: float | None = None
+    checkpoint_every: int = 100
+    validate_every: int = 100
+    seed: int = 0
+    device: str = "auto"
+    num_threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.model, ModelConfig):
+            self.model = self.model.to_dict()
+        if isinstance(self.loss, LossConfig):
+            self.loss = self.loss.to_dict()
+        if not isinstance(self.model, dict) or not isinstance(self.loss, dict):
+            raise ValueError("TrainConfig.model and TrainConfig.loss must be dicts (or ModelConfig / LossConfig)")
+        self.model = ModelConfig.from_dict(self.model).to_dict()  # validates and fills in defaults
+        self.loss = LossConfig.from_dict(self.loss).to_dict()
+        if self.data_dir is None and self.category not in CATEGORIES:
+            raise ValueError(f"TrainConfig.category must be one of {CATEGORIES}, got {self.category!r}")
+        for name in ("n_shapes", "n_points", "batch_size", "epochs", "checkpoint_every", "validate_every"):
+            _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
+        for name in ("data_seed", "split_seed", "seed"):
+            _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=0)
+        for name in ("max_steps", "num_threads"):
+            if getattr(self, name) is not None:
+                _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
+        fractions = self.split_fractions
+        if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
+            raise ValueError(f"TrainConfig.split_fractions must be (train, validation, test), got {fractions!r}")
+        self.split_fractions = tuple(float(f) for f in fractions)
+        train, val, test = self.split_fractions
+        if train <= 0 or val <= 0 or test < 0 or abs(train + val + test - 1) > 1e-6:
+            raise ValueError(
+                "TrainConfig.split_fractions must be (train > 0, validation > 0, test >= 0) summing to 1, "
+                f"got {fractions!r}"
+            )
+        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
+            raise ValueError(f"TrainConfig.lr must be a positive number, got {self.lr!r}")
+        self.lr = float(self.lr)
+        if self.max_minutes is not None:
+            if not (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0):
+                raise ValueError(f"TrainConfig.max_minutes must be a positive number or None, got {self.max_minutes!r}")
+            self.max_minutes = float(self.max_minutes)
+        if not isinstance(self.device, str) or not (self.device in ("auto", "cpu") or self.device.startswith("cuda")):
+            raise ValueError(f"TrainConfig.device must be 'auto', 'cpu' or 'cuda[:i]', got {self.device!r}")
+        if self.data_dir is not None:
+            self.data_dir = str(self.data_dir)
+
+    @property
+    def model_config(self) -> ModelConfig:
+        return ModelConfig.from_dict(self.model)
+
+    @property
+    def loss_config(self) -> LossConfig:
+        return LossConfig.from_dict(self.loss)
+
+    def to_dict(self) -> dict:
+        """The configuration as a dict of JSON types."""
+        out = dataclasses.asdict(self)
+        out["split_fractions"] = list(self.split_fractions)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        """Inverse of :meth:`to_dict`; unknown keys are an error, missing keys take the defaults."""
+        if not isinstance(data, dict):
+            raise TypeError(f"TrainConfig.from_dict expects a dict, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown TrainConfig key(s) {unknown}; known keys are {sorted(known)}")
+        return cls(**data)
+
+    def replace(self, **changes) -> "TrainConfig":
+        """A copy with some fields changed; ``model`` / ``loss`` changes are merged into the dicts."""
+        data = self.to_dict()
+        for key in ("model", "loss"):
+            if key in changes and isinstance(changes[key], dict):
+                changes[key] = {**data[key], **changes[key]}
+        data.update(changes)
+        return TrainConfig.from_dict(data)
+
+    def save_json(self, path: str | os.PathLike) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        return path
+
+    @classmethod
+    def load_json(cls, path: str | os.PathLike) -> "TrainConfig":
+        """Read a JSON config file (any subset of the fields; ``model`` / ``loss`` may be partial)."""
+        return cls.from_dict(read_config_file(path))
+
+    def run_defining(self) -> dict:
+        """The fields that determine the weights of every step (all but :data:`RESUMABLE_CHANGES`)."""
+        return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
+
+
+def read_config_file(path: str | os.PathLike) -> dict:
+    """The JSON object of a config file as it is (a partial TrainConfig dict; checked when used)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such config file")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a config file must hold a JSON object, got {type(data).__name__}")
+    return data
+
+
+def _check_int(value, name: str, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Data
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ShapeSet:
+    """Shapes held in memory: points, normals (S, N, 3) float32, labels (S, N) int64 or None.
+
+    indices (S,): each shape's index in its source (collection or sorted file list); part_names:
+    the names of the part labels (None when unknown); num_parts: the number of part labels.
+    """
+
+    points: torch.Tensor
+    normals: torch.Tensor
+    labels: torch.Tensor | None
+    indices: torch.Tensor
+    part_names: tuple[str, ...] | None = None
+    num_parts: int | None = None
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def subset(self, index: torch.Tensor) -> "ShapeSet":
+        """The shapes at positions ``index`` (a 1-D int64 tensor)."""
+        return ShapeSet(
+            self.points[index], self.normals[index], None if self.labels is None else self.labels[index],
+            self.indices[index], self.part_names, self.num_parts,
+        )
+
+    def to(self, device: torch.device | str) -> "ShapeSet":
+        return ShapeSet(
+            self.points.to(device), self.normals.to(device), None if self.labels is None else self.labels.to(device),
+            self.indices, self.part_names, self.num_parts,
+        )
+
+
+def split_indices(n: int, fractions: tuple[float, float, float], seed: int) -> dict[str, torch.Tensor]:
+    """Assign ``n`` shapes to "train", "val" and "test" by a permutation seeded with ``seed``.
+
+    Sizes: validation round(n * f_val) (at least 1), test round(n * f_test) (at least 1 if
+    f_test > 0), train the rest (at least 1). Returns sorted int64 index tensors; the same
+    (n, fractions, seed) always gives the same split.
+    """
+    _, f_val, f_test = fractions
+    n_val = max(1, round(n * f_val))
+    n_test = max(1, round(n * f_test)) if f_test > 0 else 0
+    n_train = n - n_val - n_test
+    if n_train < 1:
+        raise ValueError(
+            f"{n} shapes are too few for the split fractions {tuple(fractions)}: no training shape is left"
+        )
+    perm = torch.randperm(n, generator=torch.Generator().manual_seed(_derive_seed(seed)))
+    parts = torch.split(perm, [n_train, n_val, n_test])
+    return {name: part.sort().values for name, part in zip(("train", "val", "test"), parts)}
+
+
+def _data_files(folder: Path) -> list[Path]:
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES
+
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such data folder")
+    suffixes = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    if not files:
+        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})")
+    return files
+
+
+def load_shapes(config: TrainConfig, progress: bool = False) -> ShapeSet:
+    """All shapes of the configured data source as one :class:`ShapeSet` (before splitting)."""
+    from .dataset import PointCloudDataset
+    from .shapes import make_collection
+
+    if config.data_dir is None:
+        collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
+                                     progress=progress)
+        dataset = PointCloudDataset(collection)
+        part_names = PART_NAMES[config.category]
+    else:
+        dataset = PointCloudDataset(_data_files(Path(config.data_dir)), n_points=config.n_points, seed=config.data_seed)
+        part_names = None
+    items = [dataset[i] for i in range(len(dataset))]
+    sizes = {int(item["points"].shape[0]) for item in items}
+    if len(sizes) > 1:
+        raise ValueError(f"the shapes have different numbers of points {sorted(sizes)}; set n_points to batch them")
+    has_labels = all("labels" in item for item in items)
+    labels = torch.stack([item["labels"] for item in items]) if has_labels else None
+    num_parts = None
+    if labels is not None:
+        num_parts = len(part_names) if part_names is not None else int(labels.max()) + 1
+        if labels.min() < 0 or labels.max() >= num_parts:
+            raise ValueError(
+                f"part labels must lie in [0, {num_parts}), got [{int(labels.min())}, {int(labels.max())}]"
+            )
+    return ShapeSet(
+        torch.stack([item["points"] for item in items]),
+        torch.stack([item["normals"] for item in items]),
+        labels,
+        torch.stack([item["index"] for item in items]),
+        part_names,
+        num_parts,
+    )
+
+
+def load_splits(config: TrainConfig, progress: bool = False) -> dict[str, ShapeSet]:
+    """The "train", "val" and "test" :class:`ShapeSet` of a configuration (see :func:`split_indices`)."""
+    shapes = load_shapes(config, progress)
+    return {name: shapes.subset(idx) for name, idx in split_indices(len(shapes), config.split_fractions,
+                                                                    config.split_seed).items()}
+
+
+def resolve_device(name: str) -> torch.device:
+    """"auto" -> CUDA when available, else CPU; otherwise ``torch.device(name)`` (CUDA must exist)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
+    return device
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation loss (model selection)
+# ----------------------------------------------------------------------------------------------
+
+
+@torch.no_grad()
+def validation_loss(
+    model: CuboidAbstractionNet, shapes: ShapeSet, loss_config: LossConfig, batch_size: int, seed: int
+) -> dict[str, float]:
+    """The loss terms (Eq. (9)) averaged over the shapes, in evaluation mode.
+
+    Evaluation mode: BatchNorm uses its running statistics and z = mu (no VAE noise). The offsets
+    along the normals (Eq. (5)) come from a generator seeded with ``seed``, so the value is a
+    deterministic function of the weights and comparable between validations. Restores the
+    model's training flag. Returns a dict over :data:`LOSS_TERMS` plus ``n_existing`` (mean number
+    of cuboids with existence probability > 0.5).
+    """
+    was_training = model.training
+    model.eval()
+    device = next(model.parameters()).device
+    generator = torch.Generator(device).manual_seed(seed)
+    sums = torch.zeros(len(LOSS_TERMS) + 1, dtype=torch.float64)
+    try:
+        for start in range(0, len(shapes), batch_size):
+            points = shapes.points[start:start + batch_size].to(device)
+            normals = shapes.normals[start:start + batch_size].to(device)
+            out = model(points)
+            terms = total_loss(out, points, normals, loss_config, generator=generator)
+            n_exist = (out.exist_logits > 0).sum(dim=1).to(points.dtype).mean()
+            values = torch.stack([getattr(terms, k) for k in LOSS_TERMS] + [n_exist])
+            sums += values.double().cpu() * points.shape[0]
+    finally:
+        model.train(was_training)
+    means = (sums / len(shapes)).tolist()
+    return dict(zip(LOSS_TERMS + ("n_existing",), means))
+
+
+# ----------------------------------------------------------------------------------------------
+# The trainer
+# ----------------------------------------------------------------------------------------------
+
+
+def _first_names(names: list[str]) -> str:
+    return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+
+
+class TrainingDiverged(RuntimeError):
+    """Raised when a loss term, a gradient or a weight becomes NaN or infinite; nothing is saved."""
+
+    def __init__(self, step: int, bad: list[str], values: dict[str, float] | None = None, last_checkpoint: str = ""):
+        self.step, self.bad, self.values = step, bad, values or {}
+        shown = ", ".join(f"{k}={v:.4g}" for k, v in self.values.items())
+        msg = f"training diverged at step {step}: non-finite {', '.join(bad)}"
+        if shown:
+            msg += f" ({shown})"
+        msg += f". Nothing was saved for this step; {last_checkpoint or 'no checkpoint had been written yet'}. "
+        msg += "Try a smaller learning rate or check the data."
+        super().__init__(msg)
+
+
+@dataclass
+class TrainResult:
+    """Summary of :meth:`Trainer.run`: where it stopped and why ("finished" or "time budget")."""
+
+    step: int
+    epoch: int
+    stopped: str
+    best_val: float | None
+    best_step: int | None
+    seconds: float
+    last_terms: dict[str, float]
+    out_dir: str
+
+
+class _Distributed:
+    """Rank, world size and whether this process started the process group."""
+
+    def __init__(self) -> None:
+        self.world_size = int(os.environ.get("WORLD_SIZE", "1"))
+        self.rank = int(os.environ.get("RANK", "0"))
+        self.local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+        self.owns_group = False
+
+    @property
+    def enabled(self) -> bool:
+        return self.world_size > 1
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    def start(self, device: torch.device) -> None:
+        import torch.distributed as dist
+
+        if not self.enabled or dist.is_initialized():
+            return
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        self.owns_group = True
+
+    def stop(self) -> None:
+        import torch.distributed as dist
+
+        if self.owns_group and dist.is_initialized():
+            dist.destroy_process_group()
+            self.owns_group = False
+
+
+class Trainer:
+    """The training loop of the paper's network (Sec. 3.4.5) with checkpoints, resume and DDP.
+
+    ``Trainer(config, out_dir)`` prepares a new run in ``out_dir`` (which must not already hold a
+    ``last.pt``); ``resume=True`` continues from ``out_dir/last.pt`` and refuses if the
+    checkpoint's configuration differs from ``config`` in a field outside
+    :data:`RESUMABLE_CHANGES`. ``run()`` trains until the step budget (``epochs`` / ``max_steps``)
+    or the time budget is used up and returns a :class:`TrainResult`.
+
+    Files in ``out_dir`` (rank 0 only): ``config.json``; ``last.pt`` (full training state, every
+    ``checkpoint_every`` steps and at the end); ``best.pt`` (weights and config at the lowest
+    validation loss, checked every ``validate_every`` steps, at the end and when the time budget
+    stops the run); ``log.csv`` (one row per step with the loss terms, one per validation).
+    ``splits`` lets a caller pass already loaded data (as from :func:`load_splits`).
+    """
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        out_dir: str | os.PathLike,
+        resume: bool = False,
+        quiet: bool = False,
+        splits: dict[str, ShapeSet] | None = None,
+    ):
+        self.config = config
+        self.out_dir = Path(out_dir)
+        self.quiet = quiet
+        self.dist = _Distributed()
+        self.device = resolve_device(config.device)
+        if self.device.type == "cuda" and self.dist.enabled:
+            self.device = torch.device("cuda", self.dist.local_rank)
+            torch.cuda.set_device(self.device)
+        if config.num_threads is not None:
+            torch.set_num_threads(config.num_threads)
+        if config.batch_size % self.dist.world_size:
+            raise ValueError(
+                f"batch_size {config.batch_size} must be divisible by the number of processes {self.dist.world_size}"
+            )
+        last = self.out_dir / "last.pt"
+        if resume and not last.is_file():
+            raise FileNotFoundError(f"{last}: nothing to resume (no checkpoint in {self.out_dir})")
+        if not resume and last.is_file():
+            raise FileExistsError(f"{self.out_dir} already holds a run ({last}); resume it or choose another folder")
+
+        show = not quiet and self.dist.is_main and sys.stderr.isatty()
+        splits = splits if splits is not None else load_splits(config, progress=show)
+        self.train_set = splits["train"].to(self.device)
+        self.val_set = splits["val"]
+        self.steps_per_epoch = len(self.train_set) // config.batch_size
+        if self.steps_per_epoch == 0:
+            raise ValueError(
+                f"the training split has {len(self.train_set)} shapes, fewer than batch_size {config.batch_size}; "
+                "use more shapes or a smaller batch"
+            )
+        self.total_steps = config.epochs * self.steps_per_epoch
+        if config.max_steps is not None:
+            self.total_steps = min(self.total_steps, config.max_steps)
+        self.loss_config = config.loss_config
+
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(config.seed)
+            self.model = CuboidAbstractionNet(config.model_config)
+        self.model.to(self.device).train()
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.lr)
+        self.loss_generator = torch.Generator(self.device).manual_seed(_derive_seed(config.seed, _LOSS, self.dist.rank))
+        self.latent_generator = torch.Generator(self.device).manual_seed(
+            _derive_seed(config.seed, _LATENT, self.dist.rank)
+        )
+        self.step = 0
+        self.best_val: float | None = None
+        self.best_step: int | None = None
+        self.elapsed = 0.0  # training seconds of earlier sessions of this run
+        self.last_terms: dict[str, float] = {}
+        self._last_saved = "no checkpoint had been written yet"
+        if resume:
+            self._restore(load_checkpoint(last))  # on the CPU: generator states must stay there
+
+        self.dist.start(self.device)
+        self.net: torch.nn.Module = self.model
+        if self.dist.enabled:
+            from torch.nn.parallel import DistributedDataParallel
+
+            self.net = DistributedDataParallel(
+                self.model, device_ids=[self.device.index] if self.device.type == "cuda" else None
+            )
+        if self.dist.is_main:
+            config.save_json(self.out_dir / "config.json")
+            self._prepare_log(resume)
+
+    # ------------------------------------------------------------------------------ state
+
+    def _restore(self, state: dict) -> None:
+        missing = [k for k in ("optimizer", "step", "rng", "best_val", "elapsed_seconds") if k not in state]
+        if missing:
+            raise ValueError(f"{self.out_dir / 'last.pt'} holds no training state (missing {missing}); "
+                             "only a last.pt written by the trainer can be resumed")
+        stored = state["config"]
+        check_config_matches(stored["model"], self.config.model, "model config")
+        stored_run = {k: v for k, v in stored.items() if k not in RESUMABLE_CHANGES}
+        check_config_matches(stored_run, self.config.run_defining(), "training config")
+        if state.get("world_size", 1) != self.dist.world_size:
+            raise ValueError(
+                f"the checkpoint was written by a run of {state.get('world_size', 1)} process(es); resume it with "
+                f"the same number (this run has {self.dist.world_size}) to continue it exactly"
+            )
+        self.model.load_state_dict(state["model"], strict=True)
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.step = int(state["step"])
+        self.best_val, self.best_step = state["best_val"], state["best_step"]
+        self.elapsed = float(state["elapsed_seconds"])
+        self.loss_generator.set_state(state["rng"]["loss"][self.dist.rank])
+        self.latent_generator.set_state(state["rng"]["latent"][self.dist.rank])
+        self._last_saved = f"the last checkpoint (step {self.step}) is kept"
+
+    def _rng_states(self) -> dict[str, list[torch.Tensor]]:
+        """Every rank's generator states (a collective call when several processes train)."""
+        mine = {"loss": self.loss_generator.get_state(), "latent": self.latent_generator.get_state()}
+        if not self.dist.enabled:
+            return {k: [v] for k, v in mine.items()}
+        import torch.distributed as dist
+
+        out = {}
+        for key, state in mine.items():
+            state = state.to(self.device)  # nccl gathers CUDA tensors, gloo CPU ones
+            gathered = [torch.empty_like(state) for _ in range(self.dist.world_size)]
+            dist.all_gather(gathered, state)
+            out[key] = [g.cpu() for g in gathered]
+        return out
+
+    def _check_weights(self, step: int, values: dict[str, float]) -> None:
+        """Raise :class:`TrainingDiverged` if the update of ``step`` made a weight NaN or infinite."""
+        params = list(self.model.parameters())
+        if bool(torch.stack([torch.isfinite(p).all() for p in params]).all()):
+            return
+        bad = [name for name, p in self.model.named_parameters() if not bool(torch.isfinite(p).all())]
+        raise TrainingDiverged(step, [f"weights after the update ({_first_names(bad)})"], values, self._last_saved)
+
+    def save(self, seconds: float) -> None:
+        """Write ``last.pt`` (rank 0; every rank takes part in gathering the generator states)."""
+        rng = self._rng_states()
+        if not self.dist.is_main:
+            return
+        save_checkpoint(
+            self.out_dir / "last.pt", self.config.to_dict(), self.model.state_dict(),
+            optimizer=self.optimizer.state_dict(), step=self.step, epoch=self.step // self.steps_per_epoch,
+            rng=rng, best_val=self.best_val, best_step=self.best_step, world_size=self.dist.world_size,
+            elapsed_seconds=self.elapsed + seconds,
+        )
+        self._last_saved = f"the last checkpoint (step {self.step}, {self.out_dir / 'last.pt'}) is kept"
+
+    # -------------------------------------------------------------------------------- logs
+
+    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + ("n_existing", "seconds")
+
+    def _prepare_log(self, resume: bool) -> None:
+        """Start log.csv, or on resume drop the rows written after the checkpoint's step."""
+        path = self.out_dir / "log.csv"
+        rows = []
+        if resume and path.is_file():
+            with path.open(newline="") as f:
+                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= self.step]
+        with path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, self._LOG_FIELDS)
+            writer.writeheader()
+            writer.writerows(rows)
+
+    def _log(self, split: str, values: dict[str, float], seconds: float) -> None:
+        if not self.dist.is_main:
+            return
+        row = {"step": self.step, "epoch": self.step // self.steps_per_epoch, "split": split,
+               **{k: f"{v:.6g}" for k, v in values.items()}, "seconds": f"{self.elapsed + seconds:.1f}"}
+        with (self.out_dir / "log.csv").open("a", newline="") as f:
+            csv.DictWriter(f, self._LOG_FIELDS).writerow(row)
+
+    # ------------------------------------------------------------------------------ steps
+
+    def _permutation(self, epoch: int) -> torch.Tensor:
+        """The order of the training shapes in ``epoch``, the same on every rank and after a resume."""
+        g = torch.Generator().manual_seed(_derive_seed(self.config.seed, _ORDER, epoch))
+        return torch.randperm(len(self.train_set), generator=g)
+
+    def _train_step(self, index: torch.Tensor, over_budget: bool) -> tuple[dict[str, float], bool]:
+        """One Adam step on the shapes ``index``; returns the (process-averaged) loss terms and whether
+        any process has used up its time budget."""
+        points = self.train_set.points[index]
+        normals = self.train_set.normals[index]
+        out = self.net(points, generator=self.latent_generator)
+        bad_outputs = [k for k in _OUTPUTS if not bool(torch.isfinite(getattr(out, k).detach()).all())]
+        if bad_outputs:  # the loss would refuse them; all ranks learn of it through the NaN values
+            terms, values = None, torch.full((len(LOSS_TERMS) + 1,), math.nan, device=points.device)
+        else:
+            terms = total_loss(out, points, normals, self.loss_config, generator=self.loss_generator)
+            n_exist = (out.exist_logits.detach() > 0).sum(dim=1).to(points.dtype).mean()
+            values = torch.stack([getattr(terms, k).detach() for k in LOSS_TERMS] + [n_exist])
+        flag = torch.tensor([float(over_budget)], dtype=values.dtype, device=values.device)
+        if self.dist.enabled:
+            import torch.distributed as dist
+
+            packed = torch.cat([values / self.dist.world_size, flag])
+            dist.all_reduce(packed)
+            values, flag = packed[:-1], packed[-1:]
+        numbers = dict(zip(LOSS_TERMS + ("n_existing",), values.tolist()))
+        if bad_outputs:
+            raise TrainingDiverged(self.step + 1, [f"network outputs ({', '.join(bad_outputs)})"],
+                                   last_checkpoint=self._last_saved)
+        bad = [k for k in LOSS_TERMS if not math.isfinite(numbers[k])]
+        if bad:
+            raise TrainingDiverged(self.step + 1, bad, {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
+        self.optimizer.zero_grad(set_to_none=True)
+        terms.total.backward()
+        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
+        if not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
+            names = [n for n, p in self.model.named_parameters()
+                     if p.grad is not None and not bool(torch.isfinite(p.grad).all())]
+            raise TrainingDiverged(self.step + 1, [f"gradients ({_first_names(names)})"],
+                                   {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
+        self.optimizer.step()
+        self._check_weights(self.step + 1, {k: numbers[k] for k in LOSS_TERMS})
+        return numbers, bool(flag.item() > 0)
+
+    def _validate(self, seconds: float) -> None:
+        """Validation loss on the validation split (rank 0); keep ``best.pt`` at its minimum."""
+        if not self.dist.is_main:
+            return
+        values = validation_loss(self.model, self.val_set, self.loss_config, self.config.batch_size,
+                                 _derive_seed(self.config.seed, _VALIDATION))
+        self._log("val", values, seconds)
+        if not math.isfinite(values["total"]):
+            raise TrainingDiverged(self.step, ["validation loss"], values, self._last_saved)
+        improved = self.best_val is None or values["total"] < self.best_val
+        if improved:
+            self.best_val, self.best_step = values["total"], self.step
+            save_checkpoint(self.out_dir / "best.pt", self.config.to_dict(), self.model.state_dict(),
+                            step=self.step, best_val=self.best_val, best_step=self.step,
+                            world_size=self.dist.world_size)
+        if not self.quiet:
+            from tqdm import tqdm
+
+            tqdm.write(
+                f"step {self.step}: validation loss {values['total']:.5f} (reconstruction "
+                f"{values['reconstruction']:.5f}, {values['n_existing']:.1f} cuboids)"
+                + (" - best so far, saved best.pt" if improved
+                   else f"; best {self.best_val:.5f} at step {self.best_step}")
+            )
+
+    def run(self) -> TrainResult:
+        """Train until the step budget or the time budget is used up; checkpoint and validate."""
+        from tqdm import tqdm
+
+        config = self.config
+        start = time.monotonic()
+        deadline = start + 60 * config.max_minutes if config.max_minutes is not None else math.inf
+        shard = slice(self.dist.rank, None, self.dist.world_size)
+        bar = tqdm(total=self.total_steps, initial=self.step, desc="training", unit="step", dynamic_ncols=True,
+                   disable=True if (self.quiet or not self.dist.is_main) else None, file=sys.stderr)
+        stopped = "finished"
+        validated_at = None
+        try:
+            perm, perm_epoch = None, None
+            while self.step < self.total_steps:
+                epoch, position = divmod(self.step, self.steps_per_epoch)
+                if perm_epoch != epoch:
+                    perm, perm_epoch = self._permutation(epoch), epoch
+                batch = perm[position * config.batch_size:(position + 1) * config.batch_size][shard]
+                self.last_terms, over = self._train_step(batch.to(self.device), time.monotonic() >= deadline)
+                self.step += 1
+                self._log("train", self.last_terms, time.monotonic() - start)
+                bar.update(1)
+                bar.set_postfix(
+                    loss=f"{self.last_terms['total']:.4f}", rec=f"{self.last_terms['reconstruction']:.4f}",
+                    comp=f"{self.last_terms['compactness']:.2f}", exist=f"{self.last_terms['existence']:.3f}",
+                    kl=f"{self.last_terms['kl']:.1f}", cuboids=f"{self.last_terms['n_existing']:.1f}", refresh=False,
+                )
+                if self.step % config.validate_every == 0:
+                    self._validate(time.monotonic() - start)
+                    validated_at = self.step
+                if over:
+                    stopped = "time budget"
+                    break
+                if self.step % config.checkpoint_every == 0 and self.step < self.total_steps:
+                    self.save(time.monotonic() - start)
+            if validated_at != self.step:
+                self._validate(time.monotonic() - start)
+            self.save(time.monotonic() - start)
+        finally:
+            bar.close()
+            self.dist.stop()
+        seconds = time.monotonic() - start
+        if not self.quiet and self.dist.is_main:
+            tqdm.write(f"stopped at step {self.step} ({stopped}) after {seconds:.0f} s; "
+                       f"best validation loss {self.best_val:.5f} at step {self.best_step}")
+        return TrainResult(self.step, self.step // self.steps_per_epoch, stopped, self.best_val, self.best_step,
+                           self.elapsed + seconds, self.last_terms, str(self.out_dir))
+
+
+if __name__ == "__main__":  # ``python -m cuboidlib.train ...`` (e.g. under torchrun) = ``cuboidlib train ...``
+    from .cli import main
+
+    sys.exit(main(["train", *sys.argv[1:]]))

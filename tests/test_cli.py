@@ -1,0 +1,299 @@
+"""Tests of the command-line tool's fit, abstract, generate, interpolate and view subcommands.
+
+Each subcommand runs once through a real subprocess (``python -m cuboidlib.cli``) on the files of
+data_samples/, as a user would; the many small variations (flags, bad arguments) run in-process
+through ``main(argv)``, which is the same code without the cost of starting Python and torch again.
+The network is a tiny randomly initialised one: these tests check the plumbing, not the quality.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+import cuboidlib
+from cuboidlib.applications import CHECKPOINT_DIR_ENV
+from cuboidlib.checkpoint import save_checkpoint
+from cuboidlib.cli import _MESH_FORMATS, build_parser, main
+from cuboidlib.export import MESH_FORMATS, read_cuboids_json
+from cuboidlib.fitting import FitConfig
+from cuboidlib.io import read_point_cloud, write_point_cloud
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.train import TrainConfig
+
+SAMPLES = Path(cuboidlib.__file__).resolve().parent.parent / "data_samples"
+TINY = ModelConfig.small(num_cuboids=6, k=8, edge_dims=(8,), global_dim=16, latent_dim=8, cuboid_code_dim=8,
+                         cuboid_feature_dims=(16,), exist_hidden_dim=8, seg_dim=8)
+SUMMARY = re.compile(
+    r"^(\d+) cuboids? used of (\d+) \| Chamfer distance ([0-9.e+-]+) \(squared L2, mean over points per direction, "
+    r"sum of the two directions, 4096 points sampled on the cuboids; on the normalised shape\) \| [0-9.]+ s$"
+)
+
+
+def run(*args, env: dict | None = None) -> subprocess.CompletedProcess:
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", **(env or {})}
+    return subprocess.run([sys.executable, "-m", "cuboidlib.cli", *map(str, args)], capture_output=True,
+                          text=True, env=environment, timeout=300)
+
+
+def assert_one_line_error(stderr: str, *fragments: str) -> None:
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, stderr
+    assert "Traceback" not in stderr and "error:" in lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    """A tiny network saved like a training run (TrainConfig with n_points = 256)."""
+    torch.manual_seed(0)
+    net = CuboidAbstractionNet(TINY)
+    path = tmp_path_factory.mktemp("run") / "best.pt"
+    return save_checkpoint(path, TrainConfig(model=TINY, n_points=256).to_dict(), net.state_dict(), step=3)
+
+
+@pytest.fixture(scope="module")
+def moved_cloud(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    """data_samples' chair_0 points, scaled by 10 and shifted: a shape in its own coordinates."""
+    cloud = read_point_cloud(SAMPLES / "points" / "chair_0.ply")
+    points = cloud.points.astype(np.float64) * 10 + np.array([5.0, 2.0, -3.0])
+    path = write_point_cloud(tmp_path_factory.mktemp("input") / "big_chair.ply", points, cloud.normals, cloud.labels)
+    return path, read_point_cloud(path).points
+
+
+# ----------------------------------------------------------------------------------------------
+# Every subcommand through a subprocess
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory, moved_cloud) -> tuple[Path, subprocess.CompletedProcess]:
+    out = tmp_path_factory.mktemp("fit")
+    proc = run("fit", moved_cloud[0], "--out", out, "--cuboids", 6, "--steps", 15, "--points", 4096,
+               "--mesh-format", "glb,obj,ply", "--part-names", "back,seat,leg,arm")
+    return out, proc
+
+
+def test_fit_writes_json_meshes_and_segmentation_in_the_input_coordinates(fitted, moved_cloud):
+    out, proc = fitted
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    match = SUMMARY.match(lines[0])
+    assert match, lines[0]
+    used, total = int(match[1]), int(match[2])
+    assert total == 6 and 1 <= used <= 6 and float(match[3]) > 0
+    assert lines[1].startswith("wrote ")
+    names = {"big_chair.json", "big_chair.glb", "big_chair.obj", "big_chair.mtl", "big_chair.ply",
+             "big_chair_segmentation.ply"}
+    assert names <= {p.name for p in out.iterdir()}
+    cuboids, meta = read_cuboids_json(out / "big_chair.json")
+    assert meta["coordinates"] == "original" and meta["num_existing"] == used and meta["source"] == "big_chair.ply"
+    assert meta["method"]["name"] == "fit" and meta["method"]["steps"] == 15
+    assert meta["normalization"]["scale"] == pytest.approx(10.0, rel=1e-3)  # the sample has diagonal ~1
+    assert meta["chamfer"]["value"] == pytest.approx(float(match[3]), rel=1e-3)
+    assert meta["part_names"] == ["back", "seat", "leg", "arm"]
+    exists = cuboids.exists[0]
+    assert all(label is not None and label >= 0 for label, e in zip(meta["part_labels"], exists) if e)
+    segmented = read_point_cloud(out / "big_chair_segmentation.ply")
+    np.testing.assert_allclose(segmented.points, moved_cloud[1], atol=1e-5)  # all points, original frame
+    assert set(segmented.labels.tolist()) <= set(torch.nonzero(exists)[:, 0].tolist())
+    # the existing cuboids sit where the (moved) points are
+    lo, hi = moved_cloud[1].min(axis=0), moved_cloud[1].max(axis=0)
+    centers = cuboids.centers[0][exists].numpy()
+    assert ((centers > lo - 1) & (centers < hi + 1)).all()
+    glb = trimesh.load(out / "big_chair.glb", process=False)
+    assert len(glb.graph.nodes_geometry) == used
+
+
+def test_view_writes_a_self_contained_page(fitted):
+    out, _ = fitted
+    proc = run("view", out)
+    assert proc.returncode == 0, proc.stderr
+    page = out / "view.html"
+    assert proc.stdout.strip().startswith(f"wrote {page}")
+    html = page.read_text()
+    assert "plotly.js v" in html and "<script src=" not in html.replace(" ", "")
+    assert "big_chair.ply" in html
+
+
+def test_abstract_runs_the_network_on_a_mesh(tmp_path, checkpoint):
+    proc = run("abstract", SAMPLES / "meshes" / "table_0.ply", "--model", checkpoint, "--out", tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    match = SUMMARY.match(proc.stdout.splitlines()[0])
+    assert match and int(match[2]) == TINY.num_cuboids
+    cuboids, meta = read_cuboids_json(tmp_path / "table_0.json")
+    assert meta["method"]["name"] == "network" and meta["method"]["points"] == 256  # as in training
+    assert meta["method"]["checkpoint"] == str(checkpoint) and meta["method"]["step"] == 3
+    assert cuboids.num_cuboids == TINY.num_cuboids and int(cuboids.exists.sum()) == int(match[1])
+    assert len(read_point_cloud(tmp_path / "table_0_segmentation.ply")) == 256
+    assert (tmp_path / "table_0.glb").is_file()
+
+
+def test_generate_writes_one_shape_per_sample(tmp_path, checkpoint):
+    proc = run("generate", "--model", checkpoint, "--out", tmp_path, "--count", 3, "--seed", 4,
+               "--mesh-format", "ply")
+    assert proc.returncode == 0, proc.stderr
+    first = proc.stdout.splitlines()[0]
+    assert re.match(r"^3 shapes generated \| cuboids used: \d \d \d of 6 \| [0-9.]+ s$", first), first
+    for k in range(3):
+        cuboids, meta = read_cuboids_json(tmp_path / f"generated_{k:02d}.json")
+        assert meta["coordinates"] == "normalized" and meta["method"]["sample"] == k
+        assert (tmp_path / f"generated_{k:02d}.ply").is_file()
+    used = [int(read_cuboids_json(tmp_path / f"generated_{k:02d}.json")[1]["num_existing"]) for k in range(3)]
+    assert first.split(": ")[1].split(" of")[0] == " ".join(map(str, used))
+
+
+def test_interpolate_writes_the_path_and_reports_its_smoothness(tmp_path, checkpoint):
+    a, b = SAMPLES / "points" / "chair_0.ply", SAMPLES / "meshes" / "chair_2.ply"
+    proc = run("interpolate", a, b, "--model", checkpoint, "--out", tmp_path, "--steps", 4)
+    assert proc.returncode == 0, proc.stderr
+    first = proc.stdout.splitlines()[0]
+    assert first.startswith("4 steps from chair_0.ply to chair_2.ply | largest move of an existing cuboid")
+    ts = [read_cuboids_json(tmp_path / f"step_{k:02d}.json")[1]["method"]["t"] for k in range(4)]
+    assert ts == pytest.approx([0, 1 / 3, 2 / 3, 1]) and ts[0] == 0 and ts[-1] == 1
+
+
+def test_bad_path_is_one_readable_line(tmp_path):
+    proc = run("fit", tmp_path / "missing.ply", "--out", tmp_path)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert_one_line_error(proc.stderr, "cuboidlib fit: error:", "missing.ply: no such file")
+
+
+def test_bad_format_is_one_readable_line(tmp_path):
+    (tmp_path / "shape.abc").write_text("1 2 3\n")
+    proc = run("fit", tmp_path / "shape.abc", "--out", tmp_path / "out")
+    assert proc.returncode == 2
+    assert_one_line_error(proc.stderr, "unsupported file type '.abc'")
+
+
+def test_bad_number_is_one_readable_line(tmp_path):
+    proc = run("fit", SAMPLES / "points" / "chair_0.ply", "--out", tmp_path, "--steps", "many")
+    assert proc.returncode == 2
+    assert_one_line_error(proc.stderr, "argument --steps: expected a non-negative integer, got 'many'",
+                          "cuboidlib fit --help")
+
+
+def test_traceback_is_shown_only_when_asked_for(tmp_path):
+    proc = run("fit", tmp_path / "missing.ply", "--out", tmp_path, "--traceback")
+    assert proc.returncode != 0 and "Traceback" in proc.stderr
+    assert "FileNotFoundError: " in proc.stderr and "missing.ply: no such file" in proc.stderr
+
+
+# ----------------------------------------------------------------------------------------------
+# Variations in-process
+# ----------------------------------------------------------------------------------------------
+
+
+def test_help_of_every_subcommand_and_the_defaults_it_shows(capsys):
+    commands = ("fit", "abstract", "generate", "interpolate", "view")
+    texts = {}
+    for command in commands:
+        with pytest.raises(SystemExit) as info:
+            main([command, "--help"])
+        assert info.value.code == 0
+        texts[command] = " ".join(capsys.readouterr().out.split())
+        assert texts[command].startswith(f"usage: cuboidlib {command}") and "--traceback" in texts[command]
+    assert set(commands) <= set(build_parser()._subparsers._group_actions[0].choices)
+    defaults = FitConfig()  # the defaults shown are the fitting module's
+    assert f"are used (default: {defaults.num_cuboids})" in texts["fit"]
+    assert f"Adam steps (default: {defaults.steps})" in texts["fit"]
+    assert f"keep the lowest loss (default: {defaults.restarts})" in texts["fit"]
+    assert _MESH_FORMATS == MESH_FORMATS
+
+
+def test_fit_a_mesh_quietly_in_the_normalised_frame(tmp_path, capsys):
+    code = main(["fit", str(SAMPLES / "meshes" / "table_0.ply"), "--out", str(tmp_path), "--steps", "5",
+                 "--cuboids", "4", "--points", "512", "--normalized", "--quiet"])
+    assert code == 0
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
+    cuboids, meta = read_cuboids_json(tmp_path / "table_0.json")
+    assert meta["coordinates"] == "normalized" and cuboids.num_cuboids == 4 and meta["method"]["points"] == 512
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["table_0.glb", "table_0.json", "table_0_segmentation.ply"]
+
+
+def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monkeypatch, capsys):
+    committed = tmp_path / "committed"
+    committed.mkdir()
+    (committed / "chair.pt").write_bytes(checkpoint.read_bytes())
+    monkeypatch.setenv(CHECKPOINT_DIR_ENV, str(committed))
+    code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "chair", "--out",
+                 str(tmp_path / "out"), "--points", "128", "--centers", "allocation"])
+    assert code == 0, capsys.readouterr().err
+    _, meta = read_cuboids_json(tmp_path / "out" / "chair_1.json")
+    assert meta["method"]["checkpoint"] == str(committed / "chair.pt") and meta["method"]["centers"] == "allocation"
+    assert meta["method"]["points"] == 128
+    code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "table", "--out", str(tmp_path)])
+    assert code == 2
+    assert_one_line_error(capsys.readouterr().err, "table: no such checkpoint", "committed: chair")
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["fit", "SHAPE", "--out", "OUT", "--cuboids", "0"], "argument --cuboids: expected a positive integer"),
+        (["fit", "SHAPE", "--out", "OUT", "--mesh-format", "glb,stl"], "unknown mesh format 'stl'"),
+        (["fit", "SHAPE"], "the following arguments are required: --out"),
+        (["abstract", "SHAPE", "--model", "CKPT", "--out", "OUT", "--threshold", "1.5"],
+         "argument --threshold: expected a number in [0, 1)"),
+        (["generate", "--model", "CKPT", "--out", "OUT", "--count", "-1"], "argument --count"),
+        (["interpolate", "SHAPE", "--model", "CKPT", "--out", "OUT"], "required: SHAPE_B"),
+        (["view"], "required: RESULT"),
+        (["fit", "SHAPE", "--out", "OUT", "--part-names", "a,,b"], "argument --part-names: expected comma-separated"),
+        (["frobnicate"], "invalid choice: 'frobnicate'"),
+    ],
+)
+def test_bad_arguments_are_one_line_usage_errors(argv, fragment, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert_one_line_error(capsys.readouterr().err, fragment, "--help")
+
+
+def test_bad_inputs_are_one_line_errors(tmp_path, checkpoint, capsys):
+    sample = str(SAMPLES / "points" / "chair_0.ply")
+    (tmp_path / "file").write_text("")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"\x00" * 100)
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "cuboids.json").write_text('{"format": "cuboidlib-cuboids", "version": 1}')
+    not_ply = tmp_path / "not_a.ply"
+    not_ply.write_text("hello")
+    cases = [
+        (["fit", sample, "--out", str(tmp_path / "file")], "exists and is not a folder"),
+        (["fit", str(not_ply), "--out", str(tmp_path / "o")], "not_a.ply: not a PLY file"),
+        (["fit", sample, "--out", str(tmp_path / "o"), "--part-names", "back,seat"], "only 2 names"),
+        (["fit", str(tmp_path), "--out", str(tmp_path / "o")], "is a folder"),
+        (["abstract", sample, "--model", str(junk), "--out", str(tmp_path / "o")], "not a readable cuboidlib checkpoint"),
+        (["interpolate", sample, sample, "--model", str(checkpoint), "--out", str(tmp_path / "o"),
+          "--steps", "1"], "--steps must be at least 2"),
+        (["view", str(tmp_path / "nothing")], "no such result folder"),
+        (["view", str(broken)], "\"coordinates\" must be one of"),
+    ]
+    for argv, fragment in cases:
+        assert main(argv) == 2, argv
+        assert_one_line_error(capsys.readouterr().err, f"cuboidlib {argv[0]}: error:", fragment)
+
+
+def test_unexpected_errors_are_one_line_with_a_hint(tmp_path, monkeypatch, capsys):
+    import cuboidlib.export
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("something deep\ninside failed")
+
+    monkeypatch.setattr(cuboidlib.export, "write_view_html", broken)
+    assert main(["view", str(tmp_path)]) == 1
+    assert_one_line_error(capsys.readouterr().err, "RuntimeError: something deep inside failed",
+                          "rerun with --traceback")
+    with pytest.raises(RuntimeError, match="something deep"):
+        main(["view", str(tmp_path), "--traceback"])

@@ -1,0 +1,191 @@
+import json
+import os
+
+import pytest
+import torch
+
+from cuboidlib.cli import main
+from cuboidlib.evaluation import (
+    CuboidPredictions,
+    evaluate_baseline,
+    evaluate_model,
+    format_table,
+    label_transfer_split,
+    predict_cuboids,
+    score_cuboids,
+)
+from cuboidlib.geometry import sample_cuboid_surfaces
+from cuboidlib.metrics import ChamferConvention
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits
+
+TINY = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
+                         cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
+
+
+def _two_box_shapes(n_shapes: int = 5, n_points: int = 400, seed: int = 0):
+    """Shapes made of two separate axis-aligned boxes (a "seat" below a "back"), points sampled on their
+    surfaces, part label = box index. Returns (ShapeSet, the boxes as CuboidPredictions with a perfect segmentation)."""
+    g = torch.Generator().manual_seed(seed)
+    centers = torch.tensor([[0.0, -0.2, 0.0], [0.0, 0.25, -0.2]]).repeat(n_shapes, 1, 1)
+    centers = centers + 0.02 * torch.randn(n_shapes, 2, 3, generator=g)
+    half = torch.tensor([[0.25, 0.05, 0.15], [0.2, 0.15, 0.03]]).repeat(n_shapes, 1, 1)  # distinct principal axes
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n_shapes, 2, 1)
+    s = sample_cuboid_surfaces(centers, quats, half, n_points, generator=g)
+    shapes = ShapeSet(s.points, s.normals, s.cuboid_index.clone(), torch.arange(n_shapes), ("seat", "back"), 2)
+    exists = torch.ones(n_shapes, 2, dtype=torch.bool)
+    return shapes, CuboidPredictions(centers, quats, half, exists, s.cuboid_index.clone())
+
+
+def test_label_transfer_split_takes_a_seeded_fifth_to_label():
+    labelled, scored = label_transfer_split(10, 0.2, seed=1)
+    assert len(labelled) == 2 and len(scored) == 8
+    assert torch.equal(torch.cat([labelled, scored]).sort().values, torch.arange(10))
+    again = label_transfer_split(10, 0.2, seed=1)
+    assert torch.equal(labelled, again[0]) and torch.equal(scored, again[1])
+    assert len(label_transfer_split(3, 0.2)[0]) == 1  # at least one labelled shape and one scored
+    with pytest.raises(ValueError, match="at least 2 shapes"):
+        label_transfer_split(1)
+    with pytest.raises(ValueError, match=r"must lie in \(0, 1\)"):
+        label_transfer_split(10, 1.0)
+
+
+def test_perfect_cuboids_and_segmentation_score_perfectly():
+    shapes, pred = _two_box_shapes(n_shapes=3)
+    r = score_cuboids(shapes, pred, conventions=[ChamferConvention(n_samples=2048)])
+    assert r["miou"] == 1.0
+    # only points within about one sample spacing (~0.02 here) of an edge may find a sample on the adjacent face
+    assert r["normal_consistency"] > 0.9
+    turned = CuboidPredictions(pred.centers, torch.tensor([0.9239, 0.0, 0.3827, 0.0]).expand_as(pred.quaternions),
+                               pred.half_sizes, pred.exists, pred.segmentation)  # 45 degrees about y
+    # side-face normals now meet the points' normals at 45 degrees (|cos| = 0.71); top and bottom still agree
+    assert score_cuboids(shapes, turned, conventions=[ChamferConvention(n_samples=2048)])["normal_consistency"] < \
+        r["normal_consistency"] - 0.05
+    assert r["n_ac"] == 2.0 and r["n_shapes"] == 3
+    shifted = CuboidPredictions(pred.centers + torch.tensor([0.1, 0.0, 0.0]), pred.quaternions, pred.half_sizes,
+                                pred.exists, pred.segmentation)
+    r_shifted = score_cuboids(shapes, shifted, conventions=[ChamferConvention(n_samples=2048)])
+    # a shift by 0.1 along x moves every side face 0.1 away: the squared CD grows by far more than 0.1^2 / 4
+    assert r_shifted["chamfer"][0]["value"] > r["chamfer"][0]["value"] + 0.0025
+    assert r_shifted["miou"] == 1.0  # the segmentation did not change
+
+
+def test_label_transfer_scores_correspondence_not_index_values():
+    shapes, pred = _two_box_shapes(n_shapes=10)
+    labelled, scored = label_transfer_split(10, 0.2, seed=0)
+    # The same cuboid index meaning the other part on every shape: labels still transfer perfectly.
+    swapped_everywhere = CuboidPredictions(pred.centers, pred.quaternions, pred.half_sizes, pred.exists,
+                                           1 - pred.segmentation)
+    fast = [ChamferConvention(n_samples=64)]  # the Chamfer distance is not what this test is about
+    assert score_cuboids(shapes, swapped_everywhere, conventions=fast, seed=0)["miou"] == 1.0
+    # Indices that mean one part on the labelled shapes and the other on the scored ones: every scored point is
+    # wrong, so both labels have IoU 0.
+    inconsistent = pred.segmentation.clone()
+    inconsistent[scored] = 1 - inconsistent[scored]
+    r = score_cuboids(shapes, CuboidPredictions(pred.centers, pred.quaternions, pred.half_sizes, pred.exists,
+                                                inconsistent), conventions=fast, seed=0)
+    assert r["miou"] == 0.0
+    assert r["label_transfer"]["n_labelled"] == 2 and r["label_transfer"]["n_scored"] == 8
+
+
+def test_conventions_share_their_surface_samples():
+    shapes, pred = _two_box_shapes()
+    pred.centers = pred.centers + 0.05
+    conventions = [ChamferConvention(n_samples=512), ChamferConvention(directions="mean", n_samples=512),
+                   ChamferConvention(scale=100.0, n_samples=512), ChamferConvention(norm="l1", n_samples=512)]
+    r = score_cuboids(shapes, pred, conventions=conventions, seed=3)
+    sum_, mean, scaled, l1 = (c["value"] for c in r["chamfer"])
+    assert mean == pytest.approx(sum_ / 2, rel=1e-6)
+    assert scaled == pytest.approx(100 * sum_, rel=1e-6)
+    assert l1 != sum_
+    assert [c["norm"] for c in r["chamfer"]] == ["squared_l2", "squared_l2", "squared_l2", "l1"]
+    assert r == score_cuboids(shapes, pred, conventions=conventions, seed=3)  # repeatable
+
+
+def test_shapes_without_labels_have_no_miou():
+    shapes, pred = _two_box_shapes()
+    shapes.labels = None
+    r = score_cuboids(shapes, pred, conventions=[ChamferConvention(n_samples=64)])
+    assert r["miou"] is None and r["label_transfer"] is None
+
+
+def test_evaluate_model_runs_the_network_and_falls_back_to_one_cuboid():
+    shapes, _ = _two_box_shapes(n_shapes=4, n_points=64)
+    torch.manual_seed(0)
+    model = CuboidAbstractionNet(TINY)
+    r = evaluate_model(model, shapes, conventions=[ChamferConvention(n_samples=256)], batch_size=3)
+    assert r["method"] == "network" and r["num_cuboids"] == 4 and model.training  # training flag restored
+    assert 1 <= r["n_ac"] <= 4 and 0 <= r["miou"] <= 1 and 0 <= r["normal_consistency"] <= 1
+    assert r == evaluate_model(model, shapes, conventions=[ChamferConvention(n_samples=256)], batch_size=2)
+    with torch.no_grad():
+        model.abstraction.D_cp.existence[-1].bias.fill_(-100.0)  # no cuboid exists anywhere
+    r = evaluate_model(model, shapes, conventions=[ChamferConvention(n_samples=256)])
+    assert r["shapes_without_existing_cuboid"] == 4 and r["n_ac"] == 1.0
+    assert "network: 4 of 4 shapes have no cuboid with existence probability > 0.5" in format_table([r])
+
+
+def test_networks_trained_with_centroid_centres_are_scored_with_them():
+    shapes, _ = _two_box_shapes(n_shapes=3, n_points=64)
+    torch.manual_seed(0)
+    model = CuboidAbstractionNet(TINY).eval()
+    pred, _ = predict_cuboids(model, shapes, centers_from_allocation=True)
+    with torch.no_grad():
+        W = model(shapes.points).W
+    # c_m = sum_n W_nm p_n / (sum_n W_nm + 1), computed independently of the library
+    expected = torch.einsum("bnm,bnc->bmc", W, shapes.points) / (W.sum(dim=1)[..., None] + 1)
+    torch.testing.assert_close(pred.centers, expected)
+    assert not torch.allclose(predict_cuboids(model, shapes)[0].centers, expected)
+
+
+def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():
+    shapes, pred = _two_box_shapes(n_shapes=4)
+    r = evaluate_baseline(shapes, num_boxes=2, conventions=[ChamferConvention(n_samples=1024)])
+    perfect = score_cuboids(shapes, pred, conventions=[ChamferConvention(n_samples=1024)])
+    assert r["method"] == "k-means boxes (K=2)" and r["n_ac"] == 2.0
+    # k-means finds the two boxes, whose principal-axis boxes are close to the true ones
+    assert r["normal_consistency"] > perfect["normal_consistency"] - 0.05
+    assert r["chamfer"][0]["value"] < 2 * perfect["chamfer"][0]["value"]
+    assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid"}
+    with pytest.raises(ValueError, match="num_boxes must be a positive integer"):
+        evaluate_baseline(shapes, num_boxes=0)
+
+
+def test_format_table_states_every_convention():
+    shapes, pred = _two_box_shapes()
+    conventions = [ChamferConvention(n_samples=256), ChamferConvention(norm="l2", scale=1000.0, n_samples=256)]
+    r = {"method": "network", **score_cuboids(shapes, pred, conventions=conventions)}
+    text = format_table([r], title="test split")
+    lines = text.splitlines()
+    assert lines[0] == "test split"
+    assert lines[1].split() == ["method", "shapes", "CD", "[1]", "CD", "[2]", "NC", "mIoU", "N_AC"]
+    assert lines[3].split()[:2] == ["network", "5"] and lines[3].split()[-2:] == ["100.0", "2.00"]
+    assert "[1] Chamfer distance: squared L2, mean over points per direction, sum of the two directions" in text
+    assert "[2] Chamfer distance: L2 (not squared)" in text and "x1000" in text
+    assert "transferred from 1 shapes (20 % of the split" in text
+    shapes.labels = None
+    r = score_cuboids(shapes, pred, conventions=[ChamferConvention(n_samples=64)])
+    assert "mIoU: not computed" in format_table([{"method": "x", **r}])
+
+
+def test_evaluate_command_scores_the_test_split(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("CUBOIDLIB_CACHE", str(tmp_path / "cache"))
+    threads = torch.get_num_threads()
+    config = TrainConfig(n_shapes=20, n_points=96, batch_size=4, max_steps=2, validate_every=2, num_threads=1,
+                         model=TINY)
+    try:
+        Trainer(config, tmp_path / "run", quiet=True).run()
+    finally:
+        torch.set_num_threads(threads)
+    out = tmp_path / "eval.json"
+    code = main(["evaluate", str(tmp_path / "run" / "best.pt"), "--baseline", "--json", str(out), "--samples", "256",
+                 "--chamfer-norm", "squared_l2", "--chamfer-norm", "l1", "--device", "cpu"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "network (step 2)" in text and "k-means boxes" in text and "[2] Chamfer distance: L1" in text
+    data = json.loads(out.read_text())
+    n_test = len(load_splits(config)["test"])
+    assert data["split"] == "test" and [r["n_shapes"] for r in data["results"]] == [n_test, n_test]
+    assert data["results"][1]["num_cuboids"] == max(1, round(data["results"][0]["n_ac"]))
+    assert main(["evaluate", str(tmp_path / "missing.pt")]) == 2
+    assert "no such checkpoint" in capsys.readouterr().err
+    assert os.path.exists(tmp_path / "run" / "last.pt")

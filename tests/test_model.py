@@ -1,0 +1,476 @@
+"""Tests of cuboidlib.model: the network of Sec. 3.1-3.3 (shapes, ranges, initialisation, the fast
+EdgeConv / global layer against their straightforward references, invariances, configuration and
+input validation). A small configuration keeps the file fast."""
+
+from __future__ import annotations
+
+import copy
+import inspect
+import io
+import json
+import math
+
+import pytest
+import torch
+from torch.func import functional_call
+
+from cuboidlib import model as model_module
+from cuboidlib.model import (
+    CuboidAbstractionNet,
+    CuboidSegmentation,
+    EdgeConv,
+    GlobalFeature,
+    ModelConfig,
+    knn_indices,
+)
+
+SMALL = ModelConfig(
+    num_cuboids=4,
+    k=8,
+    edge_dims=(8, 8),
+    global_dim=32,
+    latent_dim=16,
+    cuboid_code_dim=8,
+    cuboid_feature_dims=(16, 12),
+    exist_hidden_dim=8,
+    seg_dim=8,
+)
+
+
+def _points(batch=3, n=64, seed=0, dtype=torch.float32):
+    g = torch.Generator().manual_seed(seed)
+    return (torch.rand(batch, n, 3, generator=g, dtype=torch.float64) * 2 - 1).to(dtype)
+
+
+def _net(config=SMALL, seed=0, dtype=torch.float32):
+    torch.manual_seed(seed)
+    return CuboidAbstractionNet(config).to(dtype)
+
+
+def _randomise_batchnorms(module, seed=0):
+    """Random BatchNorm scales of both signs, shifts and running statistics (tests the min branch)."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for bn in module.modules():
+            if isinstance(bn, torch.nn.BatchNorm1d):
+                c = bn.num_features
+                bn.weight.copy_(torch.rand(c, generator=g) * 2 - 1)
+                bn.bias.copy_(torch.rand(c, generator=g) - 0.5)
+                bn.running_mean.copy_(torch.rand(c, generator=g) - 0.5)
+                bn.running_var.copy_(torch.rand(c, generator=g) + 0.5)
+    assert any((bn.weight < 0).any() for bn in module.modules() if isinstance(bn, torch.nn.BatchNorm1d))
+
+
+def _assert_same_module_state(a, b, atol):
+    for (name, p), q in zip(a.named_parameters(), b.parameters()):
+        torch.testing.assert_close(p.grad, q.grad, atol=atol, rtol=1e-9, msg=f"gradient of {name}")
+    for (name, p), q in zip(a.named_buffers(), b.buffers()):
+        torch.testing.assert_close(p, q, atol=atol, rtol=1e-9, msg=f"buffer {name}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Outputs
+# ----------------------------------------------------------------------------------------------
+
+
+def test_output_shapes_and_ranges():
+    net = _net()
+    points = _points()
+    out = net(points)
+    B, N, M, L = 3, 64, SMALL.num_cuboids, SMALL.latent_dim
+    assert out.centers.shape == (B, M, 3)
+    assert out.quaternions.shape == (B, M, 4)
+    assert out.half_sizes.shape == (B, M, 3)
+    assert out.exist_logits.shape == (B, M)
+    assert out.W.shape == out.affinity.shape == (B, N, M)
+    assert out.mu.shape == out.logvar.shape == out.z.shape == (B, L)
+    assert out.point_features.shape == (B, N, sum(SMALL.edge_dims))
+    assert out.global_feature.shape == (B, SMALL.global_dim)
+    assert out.cuboid_features.shape == (B, M, SMALL.cuboid_feature_dims[-1])
+    torch.testing.assert_close(out.quaternions.norm(dim=-1), torch.ones(B, M))
+    assert (out.half_sizes > 0).all() and (out.half_sizes < 1).all()
+    assert (out.centers > -1).all() and (out.centers < 1).all()
+    assert (out.W >= 0).all()
+    torch.testing.assert_close(out.W.sum(-1), torch.ones(B, N))
+    torch.testing.assert_close(out.exist_probs, 1 / (1 + torch.exp(-out.exist_logits)))
+    assert out.segmentation.shape == (B, N) and out.segmentation.dtype == torch.long
+    assert torch.equal(out.segmentation, out.W.argmax(-1))
+
+
+def test_initial_biases_follow_the_paper():
+    net = _net()
+    head = net.abstraction.D_cp
+    assert torch.equal(head.size.bias, torch.zeros(3))
+    assert torch.equal(head.translation.bias, torch.zeros(3))
+    assert torch.equal(head.rotation.bias, torch.tensor([1.0, 0.0, 0.0, 0.0]))
+    # With the head weights zeroed, the biases alone give sigmoid(0) = 0.5 half sizes, the identity
+    # rotation and tanh(0) = 0 centres: axis-aligned cuboids at the origin.
+    with torch.no_grad():
+        for layer in (head.size, head.translation, head.rotation):
+            layer.weight.zero_()
+    out = net.eval()(_points())
+    torch.testing.assert_close(out.half_sizes, torch.full_like(out.half_sizes, 0.5))
+    torch.testing.assert_close(out.centers, torch.zeros_like(out.centers))
+    torch.testing.assert_close(out.quaternions, torch.tensor([1.0, 0, 0, 0]).expand_as(out.quaternions))
+
+
+def test_paper_sized_model_has_the_layer_sizes_of_the_paper():
+    cfg = ModelConfig()
+    net = CuboidAbstractionNet(cfg)
+    bn = lambda c: 2 * c  # noqa: E731 - scale and shift
+    expected = (
+        (6 * 64 + bn(64) + 64 * 64 + bn(64))  # EdgeConv 1: [x_j - x_i, x_i] (6) -> 64 -> 64
+        + (128 * 64 + bn(64) + 64 * 64 + bn(64))  # EdgeConv 2: 2 x 64 -> 64 -> 64
+        + (128 * 1024 + bn(1024))  # shared layer to the 1024-d global feature
+        + 2 * (1024 * 512 + 512)  # mu and log-variance
+        + 16 * 64  # E_cb on the one-hot code (no bias)
+        + (576 * 256 + 256) + (256 * 128 + 128)  # E_cf on [z, code]
+        + (128 * 3 + 3) * 2 + (128 * 4 + 4) + (128 * 32 + 32) + (32 + 1)  # D_cp heads
+        + 2 * 128 * 64  # segmentation projections (no bias)
+    )
+    assert sum(p.numel() for p in net.parameters()) == expected
+    assert 1.3e6 < expected < 1.5e6  # "about 1.4 M parameters"
+
+
+def test_segmentation_is_softmax_of_dot_products_eq_2_3():
+    torch.manual_seed(0)
+    seg = CuboidSegmentation(point_dim=6, cuboid_dim=5, seg_dim=4)
+    fp, fc = torch.randn(2, 7, 6), torch.randn(2, 3, 5)
+    A, W = seg(fp, fc)
+    gp = fp @ seg.point_proj.weight.T
+    gc = fc @ seg.cuboid_proj.weight.T
+    for b in range(2):
+        for n in range(7):
+            for m in range(3):
+                torch.testing.assert_close(A[b, n, m], torch.dot(gc[b, m], gp[b, n]))
+    expected_W = torch.exp(A) / torch.exp(A).sum(-1, keepdim=True)
+    torch.testing.assert_close(W, expected_W)
+    scaled = CuboidSegmentation(point_dim=6, cuboid_dim=5, seg_dim=4, attention_scale=True)
+    scaled.load_state_dict(seg.state_dict())
+    A_scaled, _ = scaled(fp, fc)
+    torch.testing.assert_close(A_scaled, A / 2.0)  # 1 / sqrt(seg_dim = 4)
+
+
+# ----------------------------------------------------------------------------------------------
+# Fast layers against their references (float64)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("training", [True, False])
+@pytest.mark.parametrize("in_dim", [3, 5])
+def test_fast_edgeconv_matches_reference_values_gradients_and_running_stats(training, in_dim):
+    torch.manual_seed(1)
+    fast = EdgeConv(in_dim, 6, k=5, edges_per_chunk=17).double()  # several chunks, one partial
+    _randomise_batchnorms(fast)
+    fast.train(training)
+    ref = copy.deepcopy(fast)
+    x = torch.randn(2, 23, in_dim, dtype=torch.float64, requires_grad=True)
+    x_ref = x.detach().clone().requires_grad_()
+    y, y_ref = fast(x), ref.reference_forward(x_ref)
+    torch.testing.assert_close(y, y_ref, atol=1e-12, rtol=1e-12)
+    g = torch.randn_like(y)
+    y.backward(g)
+    y_ref.backward(g)
+    torch.testing.assert_close(x.grad, x_ref.grad, atol=1e-12, rtol=1e-9)
+    _assert_same_module_state(fast, ref, atol=1e-12)
+    if training:
+        assert int(fast.bn1.num_batches_tracked) == 1 and not torch.equal(fast.bn1.running_mean, torch.zeros(6))
+
+
+def test_fast_edgeconv_keeps_float32_accuracy_for_clouds_far_from_the_origin():
+    # On close neighbours the two halves of the per-point split W_a x_j + (W_b - W_a) x_i nearly
+    # cancel; the cloud is centred first so that float32 loses no more than the reference does.
+    torch.manual_seed(5)
+    conv = EdgeConv(3, 8, k=10)
+    x = 50 + 0.05 * torch.randn(2, 200, 3)
+    nbr = knn_indices(x, 10)
+    exact = copy.deepcopy(conv).double().reference_forward(x.double(), nbr)
+    fast = conv(x, nbr).double()
+    reference32 = copy.deepcopy(conv).reference_forward(x, nbr).double()
+    assert (fast - exact).abs().max() < 1e-4 * exact.abs().max()
+    assert (fast - exact).abs().max() <= 2 * (reference32 - exact).abs().max()
+
+
+def test_fast_edgeconv_gradcheck():
+    torch.manual_seed(2)
+    conv = EdgeConv(3, 4, k=4, edges_per_chunk=10).double()
+    _randomise_batchnorms(conv)
+    x = torch.randn(2, 9, 3, dtype=torch.float64, requires_grad=True)
+    nbr = knn_indices(x, 4)  # fixed graph: the output is smooth in x and the weights
+    names = [n for n, _ in conv.named_parameters()]
+    params = tuple(p.detach().clone().requires_grad_() for p in conv.parameters())
+    for training in (True, False):
+        conv.train(training)
+
+        def f(x, *ps):
+            return functional_call(conv, dict(zip(names, ps)), (x, nbr))
+
+        assert torch.autograd.gradcheck(f, (x, *params), atol=1e-7)
+
+
+@pytest.mark.parametrize("training", [True, False])
+def test_fast_global_feature_matches_reference(training):
+    torch.manual_seed(3)
+    fast = GlobalFeature(5, 12).double()
+    _randomise_batchnorms(fast)
+    fast.train(training)
+    ref = copy.deepcopy(fast)
+    f = torch.randn(3, 20, 5, dtype=torch.float64, requires_grad=True)
+    f_ref = f.detach().clone().requires_grad_()
+    y, y_ref = fast(f), ref.reference_forward(f_ref)
+    torch.testing.assert_close(y, y_ref, atol=1e-12, rtol=1e-12)
+    g = torch.randn_like(y)
+    y.backward(g)
+    y_ref.backward(g)
+    torch.testing.assert_close(f.grad, f_ref.grad, atol=1e-12, rtol=1e-9)
+    _assert_same_module_state(fast, ref, atol=1e-12)
+
+
+def _loss(out):
+    return (
+        (out.W * out.point_features[..., :1]).sum()
+        + out.centers.sum()
+        + (out.quaternions * torch.arange(4.0, dtype=out.quaternions.dtype)).sum()
+        + out.half_sizes.square().sum()
+        + out.exist_logits.sum()
+        + out.mu.square().sum()
+        + out.logvar.sum()
+    )
+
+
+def test_whole_network_fast_path_equals_reference_path():
+    net = _net(dtype=torch.float64)
+    _randomise_batchnorms(net)
+    ref = copy.deepcopy(net)
+    points = _points(dtype=torch.float64)
+    out = net(points, sample_latent=False)
+    out_ref = ref(points, sample_latent=False, reference=True)
+    for name in ("W", "centers", "quaternions", "half_sizes", "exist_logits", "mu", "logvar", "point_features"):
+        torch.testing.assert_close(getattr(out, name), getattr(out_ref, name), atol=1e-11, rtol=1e-9)
+    _loss(out).backward()
+    _loss(out_ref).backward()
+    _assert_same_module_state(net, ref, atol=1e-10)
+
+
+def test_duplicated_points_give_the_reference_parameter_gradients():
+    # Duplicates make neighbours tie in the max over k; the gradient goes to one of the tied edges,
+    # which changes nothing for the weights (the tied edges carry identical features).
+    net = _net(dtype=torch.float64)
+    ref = copy.deepcopy(net)
+    half = _points(n=32, dtype=torch.float64)
+    points = torch.cat([half, half], dim=1)
+    out, out_ref = net(points, sample_latent=False), ref(points, sample_latent=False, reference=True)
+    torch.testing.assert_close(out.W, out_ref.W, atol=1e-11, rtol=1e-9)
+    _loss(out).backward()
+    _loss(out_ref).backward()
+    _assert_same_module_state(net, ref, atol=1e-10)
+
+
+# ----------------------------------------------------------------------------------------------
+# kNN
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("channels, k", [(3, 7), (10, 2)])  # rows shorter / longer than 64 k
+def test_knn_matches_brute_force_and_includes_self(channels, k):
+    g = torch.Generator().manual_seed(4)
+    n = 150
+    x = torch.randn(2, n, channels, generator=g)
+    idx = knn_indices(x, k)
+    assert idx.shape == (2, n, k) and idx.dtype == torch.long
+    own = torch.arange(n).view(1, n, 1)
+    assert (idx == own).any(-1).all()
+    brute = torch.empty(2, n, k, dtype=torch.long)
+    for b in range(2):
+        for i in range(n):
+            d = ((x[b] - x[b, i]) ** 2).sum(-1)
+            brute[b, i] = torch.argsort(d)[:k]
+    assert torch.equal(idx.sort(-1).values, brute.sort(-1).values)
+
+
+def test_knn_keeps_the_point_itself_among_duplicates():
+    x = torch.zeros(1, 30, 3)  # all points coincide: every distance is 0
+    idx = knn_indices(x, 5)
+    assert (idx == torch.arange(30).view(1, 30, 1)).any(-1).all()
+    assert all(len(set(row.tolist())) == 5 for row in idx[0])
+
+
+def test_knn_rejects_k_larger_than_n():
+    with pytest.raises(ValueError, match=r"k must be in \[1, N\]"):
+        knn_indices(torch.randn(1, 4, 3), 5)
+
+
+# ----------------------------------------------------------------------------------------------
+# Invariances and the latent code
+# ----------------------------------------------------------------------------------------------
+
+
+def test_permuting_points_permutes_W_and_keeps_everything_else():
+    net = _net(dtype=torch.float64).eval()
+    _randomise_batchnorms(net)
+    points = _points(dtype=torch.float64)
+    perm = torch.randperm(points.shape[1], generator=torch.Generator().manual_seed(5))
+    out, out_p = net(points), net(points[:, perm])
+    for name in ("global_feature", "mu", "logvar", "centers", "quaternions", "half_sizes", "exist_logits"):
+        torch.testing.assert_close(getattr(out_p, name), getattr(out, name), atol=1e-12, rtol=1e-10)
+    torch.testing.assert_close(out_p.W, out.W[:, perm], atol=1e-12, rtol=1e-10)
+    torch.testing.assert_close(out_p.point_features, out.point_features[:, perm], atol=1e-12, rtol=1e-10)
+
+
+def test_eval_mode_uses_the_mean_unless_sampling_is_asked_for():
+    net = _net().eval()
+    points = _points()
+    a, b = net(points), net(points)
+    assert torch.equal(a.z, a.mu) and torch.equal(a.centers, b.centers)
+    s1 = net(points, sample_latent=True, generator=torch.Generator().manual_seed(7))
+    s2 = net(points, sample_latent=True, generator=torch.Generator().manual_seed(7))
+    assert torch.equal(s1.z, s2.z)
+    assert not torch.allclose(s1.z, a.mu)
+    # z = mu + exp(logvar / 2) * n with n the generator's standard normal draws (Eq. (1))
+    noise = torch.randn(a.mu.shape, generator=torch.Generator().manual_seed(7))
+    torch.testing.assert_close(s1.z, a.mu + torch.exp(0.5 * a.logvar) * noise)
+
+
+def test_training_mode_samples_by_default():
+    net = _net().train()
+    points = _points()
+    out = net(points, generator=torch.Generator().manual_seed(8))
+    assert not torch.allclose(out.z, out.mu)
+    out_mean = net(points, sample_latent=False)
+    assert torch.equal(out_mean.z, out_mean.mu)
+
+
+def test_encode_and_decode_agree_with_forward():
+    net = _net().eval()
+    points = _points()
+    out = net(points)
+    mu, logvar = net.encode(points)
+    torch.testing.assert_close(mu, out.mu)
+    torch.testing.assert_close(logvar, out.logvar)
+    cuboids = net.decode(out.z)
+    for name in ("centers", "quaternions", "half_sizes", "exist_logits", "cuboid_features"):
+        torch.testing.assert_close(getattr(cuboids, name), getattr(out, name))
+    z = torch.randn(5, SMALL.latent_dim, generator=torch.Generator().manual_seed(9))
+    assert net.decode(z).centers.shape == (5, SMALL.num_cuboids, 3)
+
+
+def test_cuboid_branches_differ_only_by_their_one_hot_code():
+    net = _net().eval()
+    z = torch.randn(2, SMALL.latent_dim, generator=torch.Generator().manual_seed(10))
+    out = net.decode(z)
+    assert not torch.allclose(out.centers[:, 0], out.centers[:, 1])
+    # Give cuboid 1 the code of cuboid 0: E_cb, E_cf and D_cp are shared, so the two become equal.
+    with torch.no_grad():
+        net.abstraction.E_cb[0].weight[:, 1] = net.abstraction.E_cb[0].weight[:, 0]
+    out = net.decode(z)
+    torch.testing.assert_close(out.centers[:, 1], out.centers[:, 0])
+    torch.testing.assert_close(out.exist_logits[:, 1], out.exist_logits[:, 0])
+
+
+# ----------------------------------------------------------------------------------------------
+# Configuration, checkpoints, devices
+# ----------------------------------------------------------------------------------------------
+
+
+def test_config_round_trips_through_json_and_a_weights_only_checkpoint():
+    cfg = ModelConfig.small(num_cuboids=5, attention_scale=True)
+    data = json.loads(json.dumps(cfg.to_dict()))
+    assert ModelConfig.from_dict(data) == cfg
+    assert isinstance(data["edge_dims"], list)
+    net = _net(SMALL).eval()
+    buffer = io.BytesIO()
+    torch.save({"config": SMALL.to_dict(), "model": net.state_dict()}, buffer)
+    buffer.seek(0)
+    saved = torch.load(buffer, weights_only=True)
+    restored = CuboidAbstractionNet(ModelConfig.from_dict(saved["config"]))
+    restored.load_state_dict(saved["model"])
+    points = _points()
+    torch.testing.assert_close(restored.eval()(points).W, net(points).W)
+
+
+def test_small_config_is_smaller_and_runs():
+    small = CuboidAbstractionNet(ModelConfig.small())
+    paper = CuboidAbstractionNet(ModelConfig())
+    n_small = sum(p.numel() for p in small.parameters())
+    assert 15 * n_small < sum(p.numel() for p in paper.parameters()) < 20 * n_small  # "about 17x fewer"
+    out = small(_points(batch=2, n=40))
+    assert out.W.shape == (2, 40, 16)
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        (dict(num_cuboids=0), "num_cuboids must be a positive integer"),
+        (dict(k=2.5), "k must be a positive integer"),
+        (dict(edge_dims=()), "edge_dims must be a non-empty sequence"),
+        (dict(cuboid_feature_dims=(16, -1)), "cuboid_feature_dims must be a non-empty sequence"),
+        (dict(attention_scale="yes"), "attention_scale must be True or False"),
+        (dict(negative_slope=1.5), r"negative_slope must be a number in \[0, 1\)"),
+    ],
+)
+def test_config_rejects_bad_values(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        ModelConfig(**overrides)
+
+
+def test_config_from_dict_rejects_unknown_keys():
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['widths'\]"):
+        ModelConfig.from_dict({"widths": 3})
+
+
+def test_float64_model_keeps_float64_and_code_is_device_agnostic():
+    net = _net(dtype=torch.float64)
+    out = net(_points(dtype=torch.float32))  # converted to the model's dtype
+    assert out.W.dtype == out.centers.dtype == out.z.dtype == torch.float64
+    source = inspect.getsource(model_module)
+    assert ".cuda(" not in source and "'cuda'" not in source and '"cuda"' not in source
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad inputs
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "points, match",
+    [
+        (torch.zeros(2, 64, 2), r"points must have shape \(B, N, 3\)"),
+        (torch.zeros(64, 3), r"points must have shape \(B, N, 3\) \(3 dimensions\)"),
+        (torch.zeros(0, 64, 3), "empty batch"),
+        (torch.zeros(2, 8, 3), r"N = 8 points per cloud but the EdgeConv graph needs N > k = 8"),
+        ("not points", "points must be a tensor or array-like"),
+    ],
+)
+def test_forward_rejects_bad_points(points, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        _net()(points)
+
+
+def test_forward_rejects_nan_points():
+    points = _points()
+    points[1, 5, 2] = math.nan
+    expected = r"points contains 1 NaN or infinite value\(s\) \(first at index \(1, 5, 2\)\)"
+    with pytest.raises(ValueError, match=expected):
+        _net()(points)
+
+
+def test_decode_rejects_bad_latent_codes():
+    net = _net()
+    with pytest.raises(ValueError, match=r"z must have shape \(B, 16\)"):
+        net.decode(torch.zeros(2, 15))
+    with pytest.raises(ValueError, match="z contains 1 NaN"):
+        net.decode(torch.full((1, 16), 0.0).index_fill_(1, torch.tensor([3]), math.inf))
+
+
+def test_edgeconv_rejects_neighbour_indices_of_the_wrong_shape():
+    conv = EdgeConv(3, 4, k=4)
+    with pytest.raises(ValueError, match=r"neighbours must have shape \(2, 10, 4\)"):
+        conv(torch.randn(2, 10, 3), torch.zeros(2, 10, 3, dtype=torch.long))
+
+
+def test_numpy_points_are_accepted():
+    points = _points()
+    net = _net().eval()
+    out = net(points.numpy())
+    assert out.W.shape == (3, 64, SMALL.num_cuboids)
+    torch.testing.assert_close(out.W, net(points).W)

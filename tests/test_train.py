@@ -1,0 +1,439 @@
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+import cuboidlib.train as train_module
+from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint
+from cuboidlib.cli import main
+from cuboidlib.losses import LossConfig
+from cuboidlib.model import ModelConfig
+from cuboidlib.train import (
+    TrainConfig,
+    Trainer,
+    TrainingDiverged,
+    load_splits,
+    split_indices,
+    validation_loss,
+)
+
+# A network small enough for a step to take milliseconds; same structure as the paper's.
+TINY_MODEL = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
+                               cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """A private collection cache for this module (also handed to subprocesses)."""
+    path = tmp_path_factory.mktemp("cache")
+    old = os.environ.get("CUBOIDLIB_CACHE")
+    os.environ["CUBOIDLIB_CACHE"] = str(path)
+    yield path
+    if old is None:
+        del os.environ["CUBOIDLIB_CACHE"]
+    else:
+        os.environ["CUBOIDLIB_CACHE"] = old
+
+
+@pytest.fixture(autouse=True)
+def restore_threads():
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def tiny(cache_dir):
+    """(config, splits) of a tiny run: 20 chairs of 96 points, batch 4 (3 steps per epoch)."""
+    config = TrainConfig(category="chair", n_shapes=20, n_points=96, batch_size=4, max_steps=9, checkpoint_every=3,
+                         validate_every=4, num_threads=1, model=TINY_MODEL, seed=3)
+    return config, load_splits(config)
+
+
+def _weights(path):
+    return load_checkpoint(path)["model"]
+
+
+def _assert_same_state(a: dict, b: dict):
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), f"{k} differs"
+
+
+# ------------------------------------------------------------------------------------- config
+
+
+def test_defaults_are_the_papers_training_settings():
+    c = TrainConfig()
+    # Sec. 3.4.5: Adam, 1000 epochs, batch size 32, learning rate 6e-4; Sec. 4.1: a 4:1 train/test ratio of which
+    # we keep part of the training share for validation; 4096 points per shape as in the authors' data.
+    assert (c.lr, c.batch_size, c.epochs, c.n_points) == (6e-4, 32, 1000, 4096)
+    assert c.split_fractions[2] == pytest.approx(0.2)
+    assert c.model_config == ModelConfig() and c.loss_config == LossConfig()
+
+
+def test_config_round_trips_through_json(tmp_path):
+    c = TrainConfig(category="table", n_shapes=40, model=TINY_MODEL, loss=LossConfig.authors_code(), max_minutes=2.5,
+                    split_fractions=[0.6, 0.2, 0.2], data_dir=None)
+    back = TrainConfig.load_json(c.save_json(tmp_path / "c.json"))
+    assert back == c
+    assert json.loads((tmp_path / "c.json").read_text())["model"]["num_cuboids"] == 4
+
+
+def test_partial_config_file_fills_in_defaults(tmp_path):
+    (tmp_path / "c.json").write_text(json.dumps({"lr": 1e-3, "model": {"num_cuboids": 8}}))
+    c = TrainConfig.load_json(tmp_path / "c.json")
+    assert c.lr == 1e-3 and c.model_config == ModelConfig(num_cuboids=8) and c.batch_size == 32
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"lr": -1.0}, "lr must be a positive"),
+        ({"split_fractions": (0.9, 0.0, 0.1)}, "split_fractions"),
+        ({"split_fractions": (0.5, 0.2, 0.2)}, "summing to 1"),
+        ({"batch_size": 0}, "batch_size must be an integer >= 1"),
+        ({"category": "lamp"}, "category must be one of"),
+        ({"device": "tpu"}, "device must be"),
+        ({"model": {"k": 0}}, "ModelConfig.k"),
+        ({"loss": {"distance": "hausdorff"}}, "distance must be one of"),
+        ({"learning_rate": 1e-3}, "unknown TrainConfig key"),
+    ],
+)
+def test_bad_config_values_are_refused(change, match):
+    with pytest.raises(ValueError, match=match):
+        TrainConfig.from_dict({**TrainConfig().to_dict(), **change})
+
+
+def test_config_file_errors_name_the_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such config file"):
+        TrainConfig.load_json(tmp_path / "missing.json")
+    (tmp_path / "bad.json").write_text("{lr: 1}")
+    with pytest.raises(ValueError, match="bad.json: not valid JSON"):
+        TrainConfig.load_json(tmp_path / "bad.json")
+
+
+# ---------------------------------------------------------------------------------------- data
+
+
+def test_split_indices_partition_the_shapes_repeatably():
+    s = split_indices(50, (0.7, 0.1, 0.2), seed=5)
+    assert [len(s[k]) for k in ("train", "val", "test")] == [35, 5, 10]
+    assert torch.equal(torch.cat(list(s.values())).sort().values, torch.arange(50))
+    again = split_indices(50, (0.7, 0.1, 0.2), seed=5)
+    assert all(torch.equal(s[k], again[k]) for k in s)
+    assert not torch.equal(s["test"], split_indices(50, (0.7, 0.1, 0.2), seed=6)["test"])
+    with pytest.raises(ValueError, match="too few"):
+        split_indices(2, (0.7, 0.1, 0.2), seed=0)
+
+
+def test_load_splits_gives_disjoint_labelled_point_sets(tiny):
+    config, splits = tiny
+    assert [len(splits[k]) for k in ("train", "val", "test")] == [14, 2, 4]
+    for s in splits.values():
+        assert s.points.shape[1:] == (96, 3) and s.normals.shape == s.points.shape
+        assert s.labels.shape == s.points.shape[:2] and s.num_parts == 4
+    seen = torch.cat([s.indices for s in splits.values()])
+    assert len(set(seen.tolist())) == 20
+
+
+def test_data_dir_of_point_cloud_files(tmp_path, tiny):
+    _, splits = tiny
+    from cuboidlib.io import write_point_cloud
+
+    for i in range(6):
+        write_point_cloud(tmp_path / f"s{i}.ply", splits["train"].points[i].numpy(), splits["train"].normals[i].numpy(),
+                          splits["train"].labels[i].numpy())
+    config = TrainConfig(data_dir=str(tmp_path), n_points=64, split_fractions=(0.6, 0.2, 0.2))
+    loaded = load_splits(config)
+    assert [len(loaded[k]) for k in ("train", "val", "test")] == [4, 1, 1]
+    assert loaded["train"].points.shape == (4, 64, 3) and loaded["train"].labels is not None
+    with pytest.raises(FileNotFoundError, match="no such data folder"):
+        load_splits(TrainConfig(data_dir=str(tmp_path / "nope")))
+
+
+# ----------------------------------------------------------------------------------- training
+
+
+def test_training_writes_checkpoints_logs_and_best_by_validation(tmp_path, tiny):
+    config, splits = tiny
+    result = Trainer(config, tmp_path, quiet=True, splits=splits).run()
+    assert result.step == 9 and result.stopped == "finished"
+    assert {"last.pt", "best.pt", "config.json", "log.csv"} <= {p.name for p in tmp_path.iterdir()}
+    assert TrainConfig.load_json(tmp_path / "config.json") == config
+    with (tmp_path / "log.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    train_rows = [r for r in rows if r["split"] == "train"]
+    val_rows = [r for r in rows if r["split"] == "val"]
+    assert [int(r["step"]) for r in train_rows] == list(range(1, 10))
+    assert [int(r["step"]) for r in val_rows] == [4, 8, 9]  # every validate_every steps and at the end
+    best = min(val_rows, key=lambda r: float(r["total"]))
+    stored = load_checkpoint(tmp_path / "best.pt")
+    assert stored["best_step"] == int(best["step"]) == result.best_step
+    assert stored["best_val"] == pytest.approx(float(best["total"]), rel=1e-5)
+    last = load_checkpoint(tmp_path / "last.pt")
+    assert last["step"] == 9 and last["epoch"] == 3  # 14 training shapes // batch 4 = 3 steps per epoch
+
+
+def test_model_selection_sees_only_the_validation_split(tmp_path, tiny, monkeypatch):
+    config, splits = tiny
+    seen = []
+
+    def spy(model, shapes, *args, **kwargs):
+        seen.append(shapes.indices.clone())
+        return validation_loss(model, shapes, *args, **kwargs)
+
+    monkeypatch.setattr(train_module, "validation_loss", spy)
+    Trainer(config.replace(max_steps=4), tmp_path, quiet=True, splits=splits).run()
+    assert seen and all(torch.equal(s, splits["val"].indices) for s in seen)
+    assert not set(splits["val"].indices.tolist()) & set(splits["test"].indices.tolist())
+
+
+def test_validation_loss_is_a_deterministic_function_of_the_weights(tiny):
+    config, splits = tiny
+    torch.manual_seed(0)
+    model = train_module.CuboidAbstractionNet(TINY_MODEL)
+    a = validation_loss(model, splits["val"], config.loss_config, 4, seed=1)
+    b = validation_loss(model, splits["val"], config.loss_config, 4, seed=1)
+    assert a == b and model.training  # the training flag is restored
+    assert set(a) == {"total", "reconstruction", "compactness", "existence", "kl", "n_existing"}
+
+
+def test_resume_gives_bitwise_the_same_weights_as_an_uninterrupted_run(tmp_path, tiny):
+    config, splits = tiny
+    Trainer(config, tmp_path / "full", quiet=True, splits=splits).run()
+    Trainer(config.replace(max_steps=5), tmp_path / "cut", quiet=True, splits=splits).run()
+    assert load_checkpoint(tmp_path / "cut" / "last.pt")["step"] == 5  # stopped in the middle of epoch 1
+    resumed = Trainer(config, tmp_path / "cut", resume=True, quiet=True, splits=splits)
+    assert resumed.step == 5
+    resumed.run()
+    full, cut = load_checkpoint(tmp_path / "full" / "last.pt"), load_checkpoint(tmp_path / "cut" / "last.pt")
+    _assert_same_state(full["model"], cut["model"])
+    for a, b in zip(full["optimizer"]["state"].values(), cut["optimizer"]["state"].values()):
+        _assert_same_state(a, b)
+    # Same loss terms at every step. The cut run also validated where it stopped (step 5), so its validation
+    # rows are those of the full run plus that one.
+    rows = {name: [r[:-1] for r in csv.reader((tmp_path / name / "log.csv").open())] for name in ("full", "cut")}
+    assert [r for r in rows["full"] if r[2] != "val"] == [r for r in rows["cut"] if r[2] != "val"]
+    assert [r for r in rows["cut"] if r[2] == "val" and r[0] != "5"] == [r for r in rows["full"] if r[2] == "val"]
+
+
+def test_a_different_seed_gives_different_weights(tmp_path, tiny):
+    config, splits = tiny
+    Trainer(config.replace(max_steps=2), tmp_path / "a", quiet=True, splits=splits).run()
+    Trainer(config.replace(max_steps=2, seed=4), tmp_path / "b", quiet=True, splits=splits).run()
+    a, b = _weights(tmp_path / "a" / "last.pt"), _weights(tmp_path / "b" / "last.pt")
+    assert not torch.equal(a["segmentation.point_proj.weight"], b["segmentation.point_proj.weight"])
+
+
+def test_resume_refuses_a_different_configuration(tmp_path, tiny):
+    config, splits = tiny
+    Trainer(config.replace(max_steps=3), tmp_path, quiet=True, splits=splits).run()
+    with pytest.raises(CheckpointMismatch, match=r"lr: checkpoint has 0.0006, requested 0.001"):
+        Trainer(config.replace(lr=1e-3), tmp_path, resume=True, quiet=True, splits=splits)
+    with pytest.raises(CheckpointMismatch, match=r"model config .*num_cuboids: checkpoint has 4, requested 5"):
+        Trainer(config.replace(model={"num_cuboids": 5}), tmp_path, resume=True, quiet=True, splits=splits)
+    # budget and bookkeeping fields may change
+    Trainer(config.replace(max_steps=4, validate_every=2, checkpoint_every=1), tmp_path, resume=True, quiet=True,
+            splits=splits)
+
+
+def test_a_run_folder_is_never_overwritten_by_accident(tmp_path, tiny):
+    config, splits = tiny
+    with pytest.raises(FileNotFoundError, match="nothing to resume"):
+        Trainer(config, tmp_path, resume=True, quiet=True, splits=splits)
+    Trainer(config.replace(max_steps=1), tmp_path, quiet=True, splits=splits).run()
+    with pytest.raises(FileExistsError, match="already holds a run"):
+        Trainer(config, tmp_path, quiet=True, splits=splits)
+
+
+def test_batch_larger_than_the_training_split_is_refused(tmp_path, tiny):
+    config, splits = tiny
+    with pytest.raises(ValueError, match="fewer than batch_size 32"):
+        Trainer(config.replace(batch_size=32), tmp_path, quiet=True, splits=splits)
+
+
+def test_time_budget_stops_cleanly_with_a_checkpoint(tmp_path, tiny):
+    config, splits = tiny
+    result = Trainer(config.replace(max_steps=500, max_minutes=1e-6), tmp_path, quiet=True, splits=splits).run()
+    assert result.stopped == "time budget" and result.step < 500
+    assert load_checkpoint(tmp_path / "last.pt")["step"] == result.step
+    assert load_checkpoint(tmp_path / "best.pt")["step"] == result.step  # validated at the stop
+
+
+# ---------------------------------------------------------------------------------- divergence
+
+
+def test_nan_loss_stops_with_a_clear_error_and_keeps_the_last_good_checkpoint(tmp_path, tiny, monkeypatch):
+    config, splits = tiny
+    real = train_module.total_loss
+    calls = []
+
+    def poisoned(*args, **kwargs):
+        terms = real(*args, **kwargs)
+        calls.append(1)
+        if len(calls) == 5:  # the forward pass of step 5
+            terms.reconstruction = terms.reconstruction * float("nan")
+            terms.total = terms.total + terms.reconstruction
+        return terms
+
+    monkeypatch.setattr(train_module, "total_loss", poisoned)
+    trainer = Trainer(config.replace(validate_every=100), tmp_path, quiet=True, splits=splits)
+    with pytest.raises(TrainingDiverged, match=r"step 5: non-finite total, reconstruction.*step 3.*is kept") as info:
+        trainer.run()
+    assert info.value.step == 5 and info.value.bad == ["total", "reconstruction"]
+    last = load_checkpoint(tmp_path / "last.pt")
+    assert last["step"] == 3
+    assert all(torch.isfinite(v).all() for v in last["model"].values() if v.is_floating_point())
+
+
+def test_huge_learning_rate_diverges_without_writing_a_broken_checkpoint(tmp_path, tiny):
+    config, splits = tiny
+    trainer = Trainer(config.replace(lr=1e6, checkpoint_every=1, max_steps=20), tmp_path, quiet=True, splits=splits)
+    with pytest.raises(TrainingDiverged, match=r"diverged at step (\d+): non-finite network outputs") as info:
+        trainer.run()
+    step = info.value.step
+    assert f"the last checkpoint (step {step - 1}" in str(info.value)
+    last = load_checkpoint(tmp_path / "last.pt")
+    assert last["step"] == step - 1
+    assert all(torch.isfinite(v).all() for v in last["model"].values() if v.is_floating_point())
+
+
+def test_cli_reports_divergence_with_exit_code_3(tmp_path, tiny, capsys):
+    config, _ = tiny
+    cfg = config.replace(lr=1e6, max_steps=20, checkpoint_every=50).save_json(tmp_path / "c.json")
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet"]) == 3
+    assert "training diverged at step" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------ CLI
+
+
+def test_cli_merges_defaults_file_flags_and_set(tmp_path, capsys):
+    (tmp_path / "c.json").write_text(json.dumps({"lr": 1e-3, "model": {"k": 12}, "n_shapes": 64}))
+    code = main(["train", "--config", str(tmp_path / "c.json"), "--out", str(tmp_path / "r"), "--model-size", "small",
+                 "--num-cuboids", "8", "--lr", "2e-3", "--set", "loss.lambda_compact=0.2",
+                 "--set", "loss.distance=chamfer",
+                 "--set", "max_minutes=30", "--print-config"])
+    assert code == 0
+    printed = json.loads(capsys.readouterr().out)
+    # --model-size replaces the model section (the file's k=12 is gone), --num-cuboids then applies
+    assert printed["model"] == ModelConfig.small(num_cuboids=8).to_dict()
+    assert printed["lr"] == 2e-3 and printed["n_shapes"] == 64 and printed["max_minutes"] == 30
+    assert printed["loss"]["lambda_compact"] == 0.2 and printed["loss"]["distance"] == "chamfer"
+    assert main(["train", "--out", str(tmp_path / "r"), "--set", "lr"]) == 2
+    assert "--set expects KEY=VALUE" in capsys.readouterr().err
+
+
+def test_cli_train_and_resume(tmp_path, tiny, capsys):
+    config, _ = tiny
+    cfg = config.replace(max_steps=3).save_json(tmp_path / "c.json")
+    out = str(tmp_path / "run")
+    assert main(["train", "--config", str(cfg), "--out", out, "--quiet"]) == 0
+    assert main(["train", "--out", out, "--resume", "--max-steps", "4", "--quiet"]) == 0
+    assert load_checkpoint(Path(out) / "last.pt")["step"] == 4
+    assert main(["train", "--out", out, "--resume", "--lr", "0.1", "--quiet"]) == 2
+    assert "lr: checkpoint has 0.0006, requested 0.1" in capsys.readouterr().err
+    assert main(["train", "--config", str(cfg), "--out", out, "--quiet"]) == 2  # no silent overwrite
+
+
+def test_train_help_documents_the_options(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = capsys.readouterr().out
+    for flag in ("--config", "--out", "--resume", "--max-minutes", "--batch-size", "--lr", "--set", "torchrun"):
+        assert flag in text
+
+
+# ------------------------------------------------------------------------- real processes
+
+
+def _env():
+    env = dict(os.environ)
+    env["OMP_NUM_THREADS"] = "1"
+    return env
+
+
+def test_sigkill_mid_run_then_resume_in_a_new_process_matches_an_uninterrupted_run(tmp_path, tiny):
+    config, splits = tiny
+    steps = 24
+    config = config.replace(max_steps=steps, checkpoint_every=2, validate_every=10, epochs=100)
+    cfg = config.save_json(tmp_path / "c.json")
+    run = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "cuboidlib.cli", "train", "--config", str(cfg), "--out", str(run), "--quiet"]
+    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (run / "last.pt").exists():
+            assert proc.poll() is None, proc.communicate()[1].decode()
+            assert time.monotonic() < deadline, "no checkpoint appeared"
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    killed_at = load_checkpoint(run / "last.pt")["step"]
+    assert 0 < killed_at < steps  # the run was really interrupted
+    done = subprocess.run(cmd + ["--resume"], env=_env(), capture_output=True, timeout=300)
+    assert done.returncode == 0, done.stderr.decode()
+    Trainer(config, tmp_path / "reference", quiet=True, splits=splits).run()
+    _assert_same_state(_weights(tmp_path / "reference" / "last.pt"), _weights(run / "last.pt"))
+
+
+DDP_SCRIPT = """
+import sys, torch
+from cuboidlib.train import TrainConfig, Trainer
+trainer = Trainer(TrainConfig.load_json(sys.argv[1]), sys.argv[2], quiet=True)
+result = trainer.run()
+torch.save({"params": dict(trainer.model.named_parameters()), "state": trainer.model.state_dict(),
+            "rank": trainer.dist.rank, "world": trainer.dist.world_size, "step": result.step},
+           f"{sys.argv[2]}/rank{trainer.dist.rank}.pt")
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny):
+    # Two processes started with the variables torchrun sets (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR/PORT);
+    # `torchrun --nproc_per_node=2 -m cuboidlib.train ...` does the same through the command line.
+    config, _ = tiny
+    cfg = config.replace(max_steps=4, checkpoint_every=2).save_json(tmp_path / "c.json")
+    (tmp_path / "ddp.py").write_text(DDP_SCRIPT)
+    out = tmp_path / "run"
+    out.mkdir()
+    port = str(_free_port())
+    procs = [
+        subprocess.Popen(
+            [sys.executable, str(tmp_path / "ddp.py"), str(cfg), str(out)],
+            env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
+                 "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        )
+        for r in (0, 1)
+    ]
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err.decode()[-3000:]
+    r0, r1 = (torch.load(out / f"rank{r}.pt", weights_only=True) for r in (0, 1))
+    assert (r0["rank"], r1["rank"], r0["world"], r0["step"]) == (0, 1, 2, 4)
+    _assert_same_state(r0["params"], r1["params"])
+    # Plain BatchNorm under DDP: running statistics are rank 0's at the start of every forward pass, then each rank
+    # adds its own batch; checkpoints hold rank 0's.
+    _assert_same_state(r0["state"], _weights(out / "last.pt"))
+    last = load_checkpoint(out / "last.pt")
+    assert last["world_size"] == 2 and len(last["rng"]["loss"]) == 2
+    assert not torch.equal(last["rng"]["loss"][0], last["rng"]["loss"][1])  # each rank samples its own offsets
+    with pytest.raises(ValueError, match="written by a run of 2 process"):
+        Trainer(TrainConfig.load_json(cfg), out, resume=True, quiet=True)
