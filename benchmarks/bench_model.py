@@ -4,11 +4,10 @@ A step is: forward, loss, backward, Adam update. Every configuration (points per
 runs in a fresh Python subprocess, so that its peak resident memory (ru_maxrss) is its own.
 After ``--warmup`` steps, the median of ``--repeats`` steps is reported.
 
-The loss is a stand-in for the training loss that touches every output the real one uses: the
-paper's point-to-cuboid distance weighted by W (Eq. (4)-(5)), the compactness loss of the portions
-w (Eq. (6)), BCE of the existence logits against w > 0.05 (Eq. (7)) and the KL term (Eq. (8)),
-with the paper's weights. The inputs are random points on a sphere with their normals (the timing
-does not depend on the shapes).
+The loss is the training loss, cuboidlib.losses.total_loss with the paper's settings (LossConfig():
+reconstruction with the sampled point-to-cuboid distance, compactness, existence and KL terms,
+Eq. (4)-(9)). The inputs are random points on a sphere with their normals (the timing does not
+depend on the shapes).
 
 ``--variant fast reference`` compares the chunked EdgeConv / global layer with the straightforward
 ``reference_forward`` versions (same results). ``--profile`` prints a torch.profiler table of one
@@ -32,27 +31,8 @@ import time
 import torch
 import torch.nn.functional as F
 
-from cuboidlib.distance import point_to_cuboid_distance
-from cuboidlib.losses import allocation_portions, compactness_loss
+from cuboidlib.losses import LossConfig, total_loss
 from cuboidlib.model import CuboidAbstractionNet, EdgeConv, ModelConfig
-
-LOSS_DESCRIPTION = (
-    "stand-in loss: sum_m W*d (paper's sampled point-to-cuboid distance) + 0.1 compactness"
-    " + 0.01 BCE(exist, w > 0.05) + 6e-6 KL"
-)
-
-
-def stand_in_loss(out, points: torch.Tensor, normals: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-    """Weighted sum of the paper's four loss terms, computed from the model output (see module doc)."""
-    d = point_to_cuboid_distance(
-        points, normals, out.centers, out.quaternions, out.half_sizes, generator=generator, validate=False
-    )
-    recon = (out.W * d).sum(-1).mean()
-    w = allocation_portions(out.W)
-    compact = compactness_loss(w).mean()
-    exist = F.binary_cross_entropy_with_logits(out.exist_logits, (w > 0.05).to(w.dtype).detach())
-    kl = (-0.5 * (1 + out.logvar - out.mu**2 - out.logvar.exp()).sum(-1)).mean()
-    return recon + 0.1 * compact + 0.01 * exist + 6e-6 * kl
 
 
 def run_worker(spec: dict) -> dict:
@@ -79,7 +59,7 @@ def run_worker(spec: dict) -> dict:
         start, start_cpu = time.perf_counter(), time.process_time()
         optimizer.zero_grad(set_to_none=True)
         out = model(points, reference=reference)
-        loss = stand_in_loss(out, points, normals, gen)
+        loss = total_loss(out, points, normals, LossConfig(), generator=gen).total
         loss.backward()
         optimizer.step()
         return time.perf_counter() - start, time.process_time() - start_cpu
@@ -125,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     print(f"CuboidAbstractionNet training step (forward + loss + backward + Adam), {args.config} config, CPU")
-    print(LOSS_DESCRIPTION)
+    print("loss: cuboidlib.losses.total_loss with the paper's LossConfig() (Eq. (4)-(9))")
     print(f"batch {args.batch}, M = {args.cuboids}, median of {args.repeats} steps after {args.warmup} warm-up")
     print("median/min s: elapsed time per step; cpu s: CPU time per step summed over threads")
     print(
