@@ -124,8 +124,8 @@ def existence_mask(exist_probs: torch.Tensor, threshold: float = 0.5) -> torch.T
     """Existing cuboids from existence probabilities: p > threshold, at least one per shape.
 
     exist_probs: (B, M) in [0, 1]. Returns a (B, M) bool mask; in a shape where no probability
-    exceeds ``threshold`` only its most probable cuboid is marked (the rule of
-    :func:`cuboidlib.evaluation.predict_cuboids`).
+    exceeds ``threshold`` only its most probable cuboid is marked (the rule
+    :func:`cuboidlib.evaluation.predict_cuboids` scores networks with).
     """
     probs = as_float_tensor(exist_probs, "exist_probs")
     check_shape(probs, ("B", "M"), "exist_probs")

@@ -31,6 +31,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from .applications import existence_mask
 from .baseline import fit_cluster_boxes
 from .losses import allocation_weighted_centers
 from .metrics import (
@@ -101,9 +102,8 @@ def predict_cuboids(
     finally:
         model.train(was_training)
     probs = torch.cat(parts["probs"])
-    exists = probs > 0.5
-    empty = ~exists.any(dim=1)
-    exists[empty, probs[empty].argmax(dim=1)] = True
+    exists = existence_mask(probs)
+    empty = ~(probs > 0.5).any(dim=1)
     pred = CuboidPredictions(torch.cat(parts["centers"]), torch.cat(parts["quaternions"]),
                              torch.cat(parts["half_sizes"]), exists, torch.cat(parts["seg"]))
     return pred, int(empty.sum())
