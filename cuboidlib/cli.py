@@ -113,6 +113,9 @@ def _add_train_command(sub) -> None:
                    help="any other field, VALUE in JSON, e.g. --set loss.lambda_compact=0.2 --set model.k=16")
     p.add_argument("--print-config", action="store_true", help="print the resulting config and exit")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no messages")
+    p.add_argument("--release", metavar="FILE.pt",
+                   help="after training, copy best.pt (weights and config only) to FILE.pt, score it on the test "
+                   "split with the baseline and write the card FILE.json (command, config, training time, metrics)")
     p.set_defaults(func=_cmd_train)
 
 
@@ -169,6 +172,8 @@ def _cmd_train(args) -> int:
     from .train import Trainer, TrainingDiverged
 
     config = _train_config_from_args(args)
+    if args.release and not args.release.endswith(".pt"):
+        raise UserError(f"--release {args.release}: the released checkpoint must be a .pt file")
     if args.print_config:
         import json
 
@@ -183,6 +188,16 @@ def _cmd_train(args) -> int:
     if not args.quiet and trainer.dist.is_main:
         print(f"{result.stopped}: step {result.step} (epoch {result.epoch}); best validation loss "
               f"{result.best_val:.5f} at step {result.best_step}; files in {result.out_dir}")
+    if args.release and trainer.dist.is_main:
+        import shlex
+
+        from .release import card_path, publish_run
+
+        command = shlex.join(["cuboidlib", *(args.argv if args.argv is not None else sys.argv[1:])])
+        card = publish_run(args.out, args.release, command)
+        if not args.quiet:
+            print(card["test"]["table"])
+            print(f"released {args.release} and {card_path(args.release)}")
     return 0
 
 
@@ -676,6 +691,7 @@ def _cmd_view(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = argv
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -15,7 +15,7 @@ each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), whi
   that most of its points carry on a random 20 % of the shapes, then scores the test set with those
   labels. Here the labelled 20 % is drawn (seeded) from the evaluated split itself and the mIoU is
   computed on the remaining 80 % of that split, so no scored shape helped choose the labels.
-  Segment of a point = argmax over cuboids of the allocation W (network) or its k-means cluster
+  Segment of a point = argmax over the existing cuboids of the allocation W (network) or its k-means cluster
   (baseline, whose indices carry no correspondence between shapes).
 * **N_AC**: average number of existing cuboids, existence probability > 0.5 (Tables 6-7).
 
@@ -31,9 +31,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .applications import existence_mask
+from .applications import abstract_shapes
 from .baseline import fit_cluster_boxes
-from .losses import allocation_weighted_centers
 from .metrics import (
     ChamferConvention,
     cuboid_chamfer_distance,
@@ -72,40 +71,24 @@ class CuboidPredictions:
         return int(self.centers.shape[1])
 
 
-@torch.no_grad()
 def predict_cuboids(
     model: CuboidAbstractionNet, shapes: ShapeSet, batch_size: int = 32, centers_from_allocation: bool = False
 ) -> tuple[CuboidPredictions, int]:
-    """Run the network in evaluation mode (z = mu) on every shape.
+    """Run the network in evaluation mode (z = mu) on every shape (:func:`cuboidlib.applications.abstract_shapes`).
 
     Returns the predictions (on the CPU; a cuboid exists when its existence probability exceeds
-    0.5, and a shape with none keeps its most probable cuboid) and the number of shapes that needed
-    that fallback. ``centers_from_allocation``: place each cuboid at the allocation-weighted
-    centroid of the points (:func:`cuboidlib.losses.allocation_weighted_centers`) instead of the
-    predicted translation, for networks trained with ``LossConfig(centers_from_allocation=True)``
-    (the authors' code), whose translation head the losses never see.
+    0.5, and a shape with none keeps its most probable cuboid, :func:`existence_mask`; every point
+    is segmented to its most allocated existing cuboid) and the number of shapes that needed that
+    fallback. ``centers_from_allocation``: place each cuboid at the allocation-weighted centroid of
+    the points (:func:`cuboidlib.losses.allocation_weighted_centers`) instead of the predicted
+    translation, for networks trained with ``LossConfig(centers_from_allocation=True)`` (the
+    authors' code), whose translation head the losses never see.
     """
-    was_training = model.training
-    model.eval()
-    device = next(model.parameters()).device
-    parts: dict[str, list[torch.Tensor]] = {k: [] for k in ("centers", "quaternions", "half_sizes", "probs", "seg")}
-    try:
-        for start in range(0, len(shapes), batch_size):
-            points = shapes.points[start:start + batch_size].to(device)
-            out = model(points)
-            centers = allocation_weighted_centers(out.W, points) if centers_from_allocation else out.centers
-            parts["centers"].append(centers.cpu())
-            parts["quaternions"].append(out.quaternions.cpu())
-            parts["half_sizes"].append(out.half_sizes.cpu())
-            parts["probs"].append(out.exist_probs.cpu())
-            parts["seg"].append(out.segmentation.cpu())
-    finally:
-        model.train(was_training)
-    probs = torch.cat(parts["probs"])
-    exists = existence_mask(probs)
-    empty = ~(probs > 0.5).any(dim=1)
-    pred = CuboidPredictions(torch.cat(parts["centers"]), torch.cat(parts["quaternions"]),
-                             torch.cat(parts["half_sizes"]), exists, torch.cat(parts["seg"]))
+    out = abstract_shapes(model, shapes.points, 0.5, centers_from_allocation, batch_size)
+    cuboids = out.cuboids.to(device="cpu")
+    empty = ~(out.exist_probs > 0.5).any(dim=1)
+    pred = CuboidPredictions(cuboids.centers, cuboids.quaternions, cuboids.half_sizes, cuboids.exists,
+                             out.labels.cpu())
     return pred, int(empty.sum())
 
 

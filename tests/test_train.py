@@ -437,3 +437,51 @@ def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny):
     assert not torch.equal(last["rng"]["loss"][0], last["rng"]["loss"][1])  # each rank samples its own offsets
     with pytest.raises(ValueError, match="written by a run of 2 process"):
         Trainer(TrainConfig.load_json(cfg), out, resume=True, quiet=True)
+
+
+# -------------------------------------------------------------------------------------- release
+
+
+def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsys):
+    from cuboidlib.release import read_card
+
+    config, splits = tiny
+    cfg = config.replace(max_steps=4).save_json(tmp_path / "c.json")
+    dest = tmp_path / "published" / "chair.pt"
+    argv = ["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--release", str(dest)]
+    assert main(argv) == 0
+    released = load_checkpoint(dest)
+    assert "optimizer" not in released and "rng" not in released
+    best = load_checkpoint(tmp_path / "run" / "best.pt")
+    assert released["step"] == best["step"] and released["config"] == best["config"]
+    _assert_same_state(released["model"], best["model"])
+    card = read_card(dest)
+    assert card["command"] == "cuboidlib " + " ".join(argv)
+    assert card["config"] == best["config"]
+    assert card["training"]["steps"] == 4 and card["training"]["selected_step"] == best["step"]
+    assert card["training"]["seconds"] > 0
+    assert card["test"]["n_shapes"] == len(splits["test"])
+    network, baseline = card["test"]["results"]
+    assert network["method"].startswith("network") and baseline["method"].startswith("k-means boxes")
+    assert baseline["num_cuboids"] == max(1, round(network["n_ac"]))
+    for row in (network, baseline):
+        assert row["chamfer"][0]["value"] > 0 and 0 <= row["miou"] <= 1
+    assert "squared L2" in card["test"]["table"]
+
+
+def test_cli_release_refuses_a_bad_file_name_before_training(tmp_path, tiny, capsys):
+    config, _ = tiny
+    cfg = config.replace(max_steps=2).save_json(tmp_path / "c.json")
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--release", "x.json"]) == 2
+    assert "must be a .pt file" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def test_read_card_rejects_missing_and_foreign_files(tmp_path):
+    from cuboidlib.release import read_card
+
+    with pytest.raises(FileNotFoundError, match="no checkpoint card"):
+        read_card(tmp_path / "none.pt")
+    (tmp_path / "x.json").write_text('{"a": 1}')
+    with pytest.raises(ValueError, match="not a cuboidlib checkpoint card"):
+        read_card(tmp_path / "x.pt")

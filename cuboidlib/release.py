@@ -1,0 +1,126 @@
+"""Publishing a training run as a ready-to-use checkpoint with its evaluation card.
+
+``cuboidlib train ... --release data_samples/checkpoints/chair.pt`` ends by calling
+:func:`publish_run`: it copies the run's model-selection checkpoint (``best.pt``, chosen on the
+validation split) without the optimizer state, scores it on the **test** split together with the
+k-means + oriented-box baseline at the same number of boxes (:mod:`cuboidlib.evaluation`), and
+writes a JSON card beside it (``chair.json``) holding
+
+* ``command``: the command that trained and published it, ``git_commit`` of the source tree;
+* ``machine``: CPU count, torch threads, torch version, device;
+* ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run;
+* ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
+* ``test``: the metrics of the network and of the baseline (:func:`cuboidlib.evaluation.evaluate_model`)
+  and the printed table with its Chamfer convention.
+
+:func:`read_card` reads such a card back for notebooks and README tables.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import torch
+
+from .checkpoint import load_checkpoint, load_model, save_checkpoint
+from .evaluation import evaluate_baseline, evaluate_model, format_table
+
+__all__ = ["CARD_FORMAT", "card_path", "git_commit", "publish_run", "read_card"]
+
+CARD_FORMAT = "cuboidlib-checkpoint-card"
+
+
+def card_path(checkpoint: str | os.PathLike) -> Path:
+    """The JSON card that belongs to a checkpoint file: ``chair.pt`` -> ``chair.json``."""
+    return Path(checkpoint).with_suffix(".json")
+
+
+def git_commit(folder: str | os.PathLike | None = None) -> str | None:
+    """The commit of the git work tree holding ``folder`` (default: this package), with ``+dirty``
+    when tracked files have uncommitted changes; None outside a git work tree."""
+    where = Path(folder) if folder is not None else Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
+                               capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
+def _training_summary(run_dir: Path, selected_step: int | None) -> dict:
+    """Steps and wall-clock seconds of a run, from its ``log.csv`` (the last training row)."""
+    last = None
+    with open(run_dir / "log.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            if row["split"] == "train":
+                last = row
+    if last is None:
+        raise ValueError(f"{run_dir / 'log.csv'}: no training step logged")
+    return {"steps": int(last["step"]), "selected_step": selected_step,
+            "selection": "lowest validation loss", "seconds": round(float(last["seconds"]), 1)}
+
+
+def publish_run(
+    run_dir: str | os.PathLike,
+    dest: str | os.PathLike,
+    command: str,
+    seed: int = 0,
+) -> dict:
+    """Copy ``run_dir/best.pt`` to ``dest`` (weights + config only), evaluate it on the test split
+    with the baseline, write the card ``card_path(dest)`` and return it (a dict of JSON types).
+
+    seed: seed of the surface samples and of the label-transfer shapes of the evaluation.
+    """
+    run_dir, dest = Path(run_dir), Path(dest)
+    if dest.suffix != ".pt":
+        raise ValueError(f"{dest}: a released checkpoint must be a .pt file")
+    state = load_checkpoint(run_dir / "best.pt")
+    training = _training_summary(run_dir, state.get("step"))
+    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
+
+    from .train import TrainConfig, load_splits  # here: train imports the evaluation stack lazily too
+
+    config = TrainConfig.from_dict(state["config"])
+    model, _ = load_model(dest)
+    shapes = load_splits(config)["test"]
+    start = time.perf_counter()
+    centroids = config.loss_config.centers_from_allocation
+    network = evaluate_model(model, shapes, seed=seed, centers_from_allocation=centroids,
+                             name=f"network (M = {config.model_config.num_cuboids})")
+    boxes = max(1, round(network["n_ac"]))
+    baseline = evaluate_baseline(shapes, boxes, seed=seed)
+    title = (f"{dest.name}: {config.category} test split ({len(shapes)} shapes, {config.n_points} points each), "
+             f"network step {state.get('step')}")
+    card = {
+        "format": CARD_FORMAT,
+        "checkpoint": dest.name,
+        "command": command,
+        "git_commit": git_commit(),
+        "machine": {"cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+                    "torch": torch.__version__, "python": platform.python_version(),
+                    "device": config.device},
+        "training": training,
+        "config": config.to_dict(),
+        "test": {"split": "test", "n_shapes": len(shapes), "evaluation_seconds": round(time.perf_counter() - start, 1),
+                 "results": [network, baseline], "table": format_table([network, baseline], title)},
+    }
+    card_path(dest).write_text(json.dumps(card, indent=2) + "\n")
+    return card
+
+
+def read_card(checkpoint: str | os.PathLike) -> dict:
+    """The JSON card of a released checkpoint (``chair.pt`` or ``chair.json``)."""
+    path = card_path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no checkpoint card (written by 'cuboidlib train --release')")
+    card = json.loads(path.read_text())
+    if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
+        raise ValueError(f"{path}: not a cuboidlib checkpoint card (no format tag {CARD_FORMAT!r})")
+    return card
