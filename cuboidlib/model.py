@@ -201,7 +201,9 @@ def knn_indices(x: torch.Tensor, k: int) -> torch.Tensor:
                 own = torch.arange(r0, r1, device=x.device)
                 d[own - r0, own] = -math.inf  # the point itself is always one of its neighbours
                 out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=False).indices
-    return out
+    # Rows of non-finite features (a diverged network) may pick padding columns: keep every index valid,
+    # so the NaNs reach the outputs, where training detects them, instead of an indexing error.
+    return out.clamp_(max=n - 1)
 
 
 def _uses_batch_stats(bn: nn.BatchNorm1d) -> bool:

@@ -474,3 +474,11 @@ def test_numpy_points_are_accepted():
     out = net(points.numpy())
     assert out.W.shape == (3, 64, SMALL.num_cuboids)
     torch.testing.assert_close(out.W, net(points).W)
+
+
+def test_knn_indices_stay_valid_for_non_finite_features():
+    x = torch.randn(2, 20, 4)
+    x[0, 3] = float("nan")
+    x[1] = float("nan")  # a whole diverged cloud
+    idx = knn_indices(x, 5)
+    assert idx.shape == (2, 20, 5) and int(idx.min()) >= 0 and int(idx.max()) < 20
