@@ -6,7 +6,8 @@ colour represents the cuboids of the same serial number".
 
 - :func:`plot_cuboids_plotly` gives an interactive plotly figure of one shape (points as markers,
   every existing cuboid as a translucent ``Mesh3d`` with its edges); :func:`plot_cuboids_plotly_grid`
-  puts several shapes side by side.
+  puts several shapes side by side; :func:`plot_cuboids_plotly_slider` shows a sequence of shapes
+  (an interpolation path, Fig. 13) one at a time in one scene, chosen with a slider.
 - :func:`plot_cuboids_matplotlib` draws the same picture on a matplotlib 3D axes (static, for
   PNG outputs and papers); :func:`plot_cuboids_matplotlib_grid` makes a figure of several shapes.
 
@@ -36,6 +37,7 @@ __all__ = [
     "cuboid_color",
     "plot_cuboids_plotly",
     "plot_cuboids_plotly_grid",
+    "plot_cuboids_plotly_slider",
     "plot_cuboids_matplotlib",
     "plot_cuboids_matplotlib_grid",
 ]
@@ -255,6 +257,74 @@ def plot_cuboids_plotly_grid(
     fig.update_scenes(**_scene_layout())
     fig.update_layout(width=size * cols, height=size * rows + 20, margin=dict(l=0, r=0, t=30, b=0),
                       showlegend=False, template="plotly_white")
+    return fig
+
+
+def _data_extent(traces) -> tuple[np.ndarray, np.ndarray]:
+    """(lower corner (3,), upper corner (3,)) of every coordinate drawn by ``traces`` (NaN gaps ignored)."""
+    coords = [np.stack([np.asarray(t.x, dtype=float), np.asarray(t.y, dtype=float), np.asarray(t.z, dtype=float)], 1)
+              for t in traces if t.x is not None and len(t.x)]
+    xyz = np.concatenate(coords) if coords else np.zeros((1, 3))
+    xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    return (xyz.min(axis=0), xyz.max(axis=0)) if len(xyz) else (np.zeros(3), np.zeros(3))
+
+
+def plot_cuboids_plotly_slider(
+    items: Sequence,
+    step_labels: Sequence[str] | None = None,
+    title: str | None = None,
+    active: int = 0,
+    opacity: float = 0.25,
+    max_points: int = 2000,
+    point_size: float = 2.0,
+    decimals: int = 4,
+    width: int = 560,
+    height: int = 540,
+):
+    """A sequence of shapes in ONE interactive scene, shown one at a time with a slider (e.g. the
+    steps of an interpolation, Fig. 13).
+
+    items: a sequence of ``(points, labels, cuboids[, exists[, index]])`` tuples as in
+    :func:`plot_cuboids_plotly_grid` (points may be an empty (0, 3) array for decoded shapes);
+    step_labels: the slider's label of every item (default "0", "1", ...); active: the item shown
+    first. Every item's traces are in the figure and slider step k makes exactly item k's traces
+    visible (a ``restyle`` of ``visible``, so the camera stays where the user turned it). The axes
+    are fixed to one cube that encloses every item, so the shapes keep their scale and position
+    from step to step. Returns a ``plotly.graph_objects.Figure``.
+    """
+    import plotly.graph_objects as go
+
+    if not items:
+        raise ValueError("items is empty; give at least one (points, labels, cuboids) tuple")
+    if step_labels is not None and len(step_labels) != len(items):
+        raise ValueError(f"step_labels has {len(step_labels)} entries for {len(items)} items")
+    if isinstance(active, bool) or not isinstance(active, (int, np.integer)) or not 0 <= active < len(items):
+        raise ValueError(f"active must be an item index in [0, {len(items)}), got {active!r}")
+    labels = [str(k) for k in range(len(items))] if step_labels is None else [str(s) for s in step_labels]
+    traces, owner = [], []
+    for k, item in enumerate(items):
+        points, point_labels, cuboids, exists, index = _unpack(item, k)
+        for trace in _plotly_traces(points, point_labels, cuboids, exists, index, opacity, max_points, point_size,
+                                    decimals, showlegend=False):
+            trace.visible = k == active
+            traces.append(trace)
+            owner.append(k)
+    lo, hi = _data_extent(traces)
+    mid, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-6) * 1.05
+    scene = _scene_layout()
+    scene["aspectmode"] = "cube"
+    for axis, name in enumerate(("xaxis", "yaxis", "zaxis")):
+        scene[name] = dict(scene[name], range=[float(mid[axis] - half), float(mid[axis] + half)], autorange=False)
+    owner = np.array(owner, dtype=np.int64)
+    steps = [dict(method="restyle", label=label, args=[{"visible": (owner == k).tolist()}])
+             for k, label in enumerate(labels)]
+    fig = go.Figure(traces)
+    fig.update_layout(
+        scene=scene, width=width, height=height, showlegend=False, template="plotly_white",
+        margin=dict(l=0, r=0, t=30 if title else 0, b=0),
+        title=dict(text=title, x=0.5, font=dict(size=14)) if title else None,
+        sliders=[dict(active=int(active), steps=steps, currentvalue=dict(prefix=""), pad=dict(t=10, b=10))],
+    )
     return fig
 
 

@@ -23,6 +23,7 @@ from cuboidlib.viz import (  # noqa: E402
     plot_cuboids_matplotlib_grid,
     plot_cuboids_plotly,
     plot_cuboids_plotly_grid,
+    plot_cuboids_plotly_slider,
 )
 
 
@@ -167,6 +168,67 @@ def test_grids_reject_empty_or_mismatched_items(scene):
             grid([(points, labels, cuboids)], titles=["a", "b"])
         with pytest.raises(ValueError, match=r"item 0 must be a tuple"):
             grid([(points, labels)])
+
+
+def _sequence(scene):
+    """Three steps of one cuboid batch: 2, 1 and 3 existing cuboids, no points, the last one moved."""
+    _, _, cuboids = scene
+    moved = Cuboids(cuboids.centers + torch.tensor([2.0, 0.0, -1.0]), cuboids.quaternions, cuboids.half_sizes)
+    empty = np.zeros((0, 3))
+    return [(empty, None, cuboids), (empty, None, cuboids, torch.tensor([False, True, False])), (empty, None, moved)]
+
+
+def test_plotly_slider_shows_exactly_one_item_per_step(scene):
+    items = _sequence(scene)
+    fig = plot_cuboids_plotly_slider(items, step_labels=["t = 0", "t = 0.5", "t = 1"], title="path", active=1)
+    (slider,) = fig.layout.sliders
+    assert [s.label for s in slider.steps] == ["t = 0", "t = 0.5", "t = 1"]
+    assert slider.active == 1 and fig.layout.title.text == "path"
+    assert all(s.method == "restyle" for s in slider.steps)
+    # a mesh and its edges per existing cuboid, and no point trace for empty point sets
+    per_item = [2, 1, 3]
+    assert len(fig.data) == 2 * sum(per_item) and not any(t.mode == "markers" for t in _traces(fig, "scatter3d"))
+    owner = np.repeat(np.arange(3), [2 * n for n in per_item])
+    for k, step in enumerate(slider.steps):
+        assert step.args[0]["visible"] == (owner == k).tolist()
+    assert [bool(t.visible) for t in fig.data] == (owner == 1).tolist()  # the active item is shown first
+    meshes = _traces(fig, "mesh3d")
+    assert [t.name for t in meshes] == ["cuboid 0", "cuboid 1", "cuboid 1", "cuboid 0", "cuboid 1", "cuboid 2"]
+
+
+def test_plotly_slider_axes_are_one_fixed_cube_around_every_item(scene):
+    items = _sequence(scene)
+    fig = plot_cuboids_plotly_slider(items)
+    scene_layout = fig.layout.scene
+    assert scene_layout.aspectmode == "cube"
+    ranges = np.array([scene_layout.xaxis.range, scene_layout.yaxis.range, scene_layout.zaxis.range])
+    assert not any(a.autorange for a in (scene_layout.xaxis, scene_layout.yaxis, scene_layout.zaxis))
+    np.testing.assert_allclose(ranges[:, 1] - ranges[:, 0], ranges[0, 1] - ranges[0, 0])  # a cube
+    # every corner of every item (existing cuboids) lies inside the cube
+    corners = []
+    for _, _, cub, *rest in items:
+        ex = rest[0] if rest else cub.existing()[0]  # what is drawn: the item's mask, else the batch's
+        corners.append(cuboid_corners(cub.centers, cub.quaternions, cub.half_sizes)[0, ex].reshape(-1, 3))
+    corners = torch.cat(corners).numpy()
+    assert (corners >= ranges[:, 0] - 1e-6).all() and (corners <= ranges[:, 1] + 1e-6).all()
+    # and the cube is not much larger than the items: the widest extent fills at least 90 % of it
+    assert (corners.max(0) - corners.min(0)).max() >= 0.9 * (ranges[0, 1] - ranges[0, 0])
+    assert [s.label for s in fig.layout.sliders[0].steps] == ["0", "1", "2"]
+
+
+def test_plotly_slider_keeps_points_and_rejects_bad_inputs(scene):
+    points, labels, cuboids = scene
+    fig = plot_cuboids_plotly_slider([(points, labels, cuboids), (points, None, cuboids)])
+    markers = [t for t in _traces(fig, "scatter3d") if t.mode == "markers"]
+    assert [t.name for t in markers] == ["cuboid 0", "cuboid 1", "cuboid 2", "points"]
+    with pytest.raises(ValueError, match="items is empty"):
+        plot_cuboids_plotly_slider([])
+    with pytest.raises(ValueError, match="step_labels has 1 entries for 2 items"):
+        plot_cuboids_plotly_slider([(points, labels, cuboids)] * 2, step_labels=["a"])
+    with pytest.raises(ValueError, match=r"active must be an item index in \[0, 2\)"):
+        plot_cuboids_plotly_slider([(points, labels, cuboids)] * 2, active=2)
+    with pytest.raises(ValueError, match="item 1 must be a tuple"):
+        plot_cuboids_plotly_slider([(points, labels, cuboids), (points,)])
 
 
 # ----------------------------------------------------------------------------------------------
