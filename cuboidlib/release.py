@@ -31,7 +31,7 @@ import torch
 from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .evaluation import evaluate_baseline, evaluate_model, format_table
 
-__all__ = ["CARD_FORMAT", "card_path", "git_commit", "publish_run", "read_card"]
+__all__ = ["CARD_FORMAT", "card_path", "git_commit", "publish_run", "read_card", "cards_markdown"]
 
 CARD_FORMAT = "cuboidlib-checkpoint-card"
 
@@ -124,3 +124,27 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
     if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
         raise ValueError(f"{path}: not a cuboidlib checkpoint card (no format tag {CARD_FORMAT!r})")
     return card
+
+
+def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
+    """A Markdown table of released checkpoints, one row per card, for README files.
+
+    Columns: category, M, training (steps, minutes), the network's test Chamfer distance (x 1000,
+    convention of the first one in the card), normal consistency, mIoU (%), N_AC, and the same for the
+    baseline at the same number of boxes.
+    """
+    rows = ["| checkpoint | M | training | test shapes | CD x1000: network / baseline | NC: network / baseline "
+            "| mIoU %: network / baseline | N_AC |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for checkpoint in checkpoints:
+        card = read_card(checkpoint)
+        network, baseline = card["test"]["results"]
+        cd = [1000 * r["chamfer"][0]["value"] for r in (network, baseline)]
+        training = card["training"]
+        rows.append(
+            f"| `{card['checkpoint']}` | {card['config']['model']['num_cuboids']} "
+            f"| {training['steps']} steps, {training['seconds'] / 60:.1f} min | {card['test']['n_shapes']} "
+            f"| {cd[0]:.2f} / {cd[1]:.2f} | {network['normal_consistency']:.3f} / {baseline['normal_consistency']:.3f} "
+            f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} |"
+        )
+    return "\n".join(rows)

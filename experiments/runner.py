@@ -1,0 +1,829 @@
+"""The shared machinery of the experiment scripts: one script per table (or figure) of the paper's Sec. 4.
+
+Every script in ``experiments/`` describes its runs (which configurations, which seeds) and its
+table; this module does everything else, the same way for all of them:
+
+* **Course scale** (:func:`course_config`): what "at course scale" means, in one place. It is the
+  configuration of the committed checkpoints (``data_samples/checkpoints/configs/*.json``):
+  256 procedural shapes per category (:func:`cuboidlib.shapes.make_collection`, split 70/10/20 %),
+  1024 points per shape, the small network (:meth:`cuboidlib.model.ModelConfig.small`) with the
+  paper's M per category (airplane 20, chair 16, table 14, animal 16, Sec. 4.1), Adam with
+  learning rate 2e-3, batch 16, one torch thread per run, and the paper's loss weights except
+  lambda_1 = 0.02 on the compactness loss in the **averaged** form of the authors' code,
+  (mean_m sqrt(w_m + eps))^2 = Eq. (6) / M^2 (``LossConfig(compactness_average=True)``);
+  :func:`compactness_note` prints why the literal sum of Eq. (6) collapses at this scale. The
+  model is selected on the validation split (``best.pt``) and scored on the test split.
+* **Quick scale** (``--quick``): a tiny network, 12 shapes, an eighth of the points (at least 32),
+  2 steps, one seed: every script runs end to end in seconds (for tests; the numbers mean nothing).
+* **Input noise** (:func:`add_noise`, Table 5): seeded isotropic Gaussian jitter of the positions.
+* **Running** (:func:`run_all`): independent runs go to ``--jobs`` worker processes (default 2),
+  each with one torch thread, longest runs first; a run that fails is recorded with its error and
+  the others go on.
+* **Scoring** (:func:`score_network`): :func:`cuboidlib.evaluation.score_cuboids` on the test split
+  (Chamfer distance, normal consistency, mIoU by label transfer, N_AC), optionally against the
+  clean shapes (noise), a denser sampling of the same shapes (point density), with the k-means
+  baseline (:func:`cuboidlib.evaluation.evaluate_baseline`), or with a nearest-cuboid segmentation
+  for the variants without a segmentation branch (Table 4); per-shape fitting
+  (:mod:`cuboidlib.fitting`) is scored the same way.
+* **Results** (:func:`write_results`): ``experiments/results/<name>.json`` with the command, the
+  git commit, the machine, the wall time, the settings, the config and the metrics of every run
+  and the summary table (mean and spread over seeds) with the paper's numbers beside ours, and
+  ``<name>.csv`` with the summary table. ``--quick`` results are written as ``<name>_quick.*``.
+
+A script is an :class:`Experiment`; ``main(experiment)`` parses the common command line
+(``--quick --steps --shapes --seeds --jobs --out --runs-dir --plan``), prints the plan with its
+estimated time, runs, prints the table and writes the results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import math
+import multiprocessing
+import os
+import platform
+import shlex
+import statistics
+import sys
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from cuboidlib.checkpoint import load_model
+from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
+from cuboidlib.evaluation import CuboidPredictions, evaluate_baseline, predict_cuboids, score_cuboids
+from cuboidlib.fitting import FitConfig, fit_cuboids
+from cuboidlib.losses import LossConfig, compactness_loss
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.release import git_commit
+from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits, read_config_file, split_indices
+
+__all__ = [
+    "REPO",
+    "COURSE_NUM_CUBOIDS",
+    "COURSE_SCALE",
+    "QUICK_MODEL",
+    "DATA_NOTE",
+    "Scale",
+    "course_config",
+    "add_noise",
+    "noisy_splits",
+    "compactness_figures",
+    "compactness_note",
+    "Run",
+    "nearest_cuboid_segmentation",
+    "score_network",
+    "execute",
+    "run_all",
+    "estimate_seconds",
+    "estimate_makespan",
+    "result_rows",
+    "summarize",
+    "mean_sd",
+    "paper_value",
+    "text_table",
+    "CD_CONVENTION",
+    "machine",
+    "write_results",
+    "categories_option",
+    "Experiment",
+    "main",
+]
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS_DIR = REPO / "experiments" / "results"
+RUNS_DIR = REPO / "runs" / "experiments"
+CONFIG_DIR = REPO / "data_samples" / "checkpoints" / "configs"
+
+#: The paper's number of cuboids M per category (Sec. 4.1); the committed checkpoints use the same.
+COURSE_NUM_CUBOIDS = {"airplane": 20, "chair": 16, "table": 14, "animal": 16}
+
+#: What "course scale" means, stated in every results file.
+COURSE_SCALE = {
+    "shapes_per_category": 256,
+    "split": "70 % train / 10 % validation / 20 % test (seed 0); model selected on the validation loss",
+    "points_per_shape": 1024,
+    "model": "ModelConfig.small() (k = 16, EdgeConv 32 + 32, global 256, latent 64) with the paper's M",
+    "optimiser": "Adam, lr 2e-3 (the paper: 6e-4, too slow for minutes of training), batch 16, one torch "
+                 "thread per run",
+    "loss": "paper weights (lambda_2 0.01, lambda_3 6e-6, sigma_s 0.05) with the compactness loss in the averaged "
+            "form of the authors' code, (mean_m sqrt(w_m + 0.01))^2 = Eq. (6) / M^2, and lambda_1 = 0.02",
+    "same_as": "data_samples/checkpoints/configs/<category>.json (the committed checkpoints)",
+}
+
+#: The tiny network of --quick runs (same structure, a step takes milliseconds).
+QUICK_MODEL = dict(k=8, edge_dims=[8, 8], global_dim=16, latent_dim=8, cuboid_code_dim=8,
+                   cuboid_feature_dims=[16, 16], exist_hidden_dim=8, seg_dim=8)
+
+DATA_NOTE = (
+    "Data and scale differ from the paper: ours are procedural shapes (cuboidlib.shapes) at course scale "
+    "(256 shapes per category, 1024 points, the small network, a few hundred to a few thousand steps of "
+    "batch 16 on a CPU); the paper trains the full network on ShapeNet (thousands of shapes, 4096 points, "
+    "1000 epochs of batch 32 on a GPU). The paper's Chamfer convention is not documented (its numbers are "
+    "scaled by an unknown factor): compare the trends between cells, not the absolute values."
+)
+
+
+# ----------------------------------------------------------------------------------------------
+# Configurations
+# ----------------------------------------------------------------------------------------------
+
+
+def course_config(category: str, steps: int, **changes) -> TrainConfig:
+    """The course-scale :class:`~cuboidlib.train.TrainConfig` of ``category`` trained for ``steps`` steps.
+
+    Read from the committed checkpoint's config file, ``data_samples/checkpoints/configs/<category>.json``
+    (the defaults of :class:`~cuboidlib.train.TrainConfig` below it), so experiments and checkpoints
+    cannot drift apart. The step budget replaces the file's (no time budget: runs are repeatable);
+    validation (model selection) every 100 steps and at the end; one checkpoint at the end.
+    ``changes`` replace fields (``model`` / ``loss`` dicts are merged, see ``TrainConfig.replace``).
+    """
+    if category not in COURSE_NUM_CUBOIDS:
+        raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
+    data = TrainConfig().to_dict()
+    for key, value in read_config_file(CONFIG_DIR / f"{category}.json").items():
+        data[key] = {**data[key], **value} if key in ("model", "loss") else value
+    data.update(max_steps=steps, max_minutes=None, checkpoint_every=steps, validate_every=min(100, steps))
+    base = TrainConfig.from_dict(data)
+    return base.replace(**changes) if changes else base
+
+
+@dataclass(frozen=True)
+class Scale:
+    """The scale of one invocation: course scale (default) or ``--quick``, with the command-line overrides.
+
+    steps: training steps of every run; n_shapes: shapes per collection; seeds: training seeds.
+    """
+
+    quick: bool
+    steps: int
+    n_shapes: int
+    seeds: tuple[int, ...]
+
+    def points(self, n_points: int) -> int:
+        """Points per shape: ``n_points`` at course scale, an eighth of it (at least 32) in quick runs."""
+        return max(32, n_points // 8) if self.quick else n_points
+
+    def config(self, category: str, seed: int = 0, **changes) -> TrainConfig:
+        """:func:`course_config` at this scale (quick: the tiny network and batch 4), with ``changes``."""
+        changes = dict(changes)
+        model = dict(changes.pop("model", {}))
+        if self.quick:
+            model = {**QUICK_MODEL, **model}
+            changes.setdefault("batch_size", 4)
+        changes["n_points"] = self.points(changes.get("n_points", COURSE_SCALE["points_per_shape"]))
+        return course_config(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)
+
+    def fit_config(self, num_cuboids: int, seed: int = 0) -> FitConfig:
+        """Per-shape fitting (:class:`~cuboidlib.fitting.FitConfig` defaults: 300 Adam steps, Eq. (4) + the
+        averaged Eq. (6) with lambda_1 = 0.1) with M cuboids; 5 steps in quick runs."""
+        return FitConfig(num_cuboids=num_cuboids, seed=seed, **({"steps": 5} if self.quick else {}))
+
+
+# ----------------------------------------------------------------------------------------------
+# Input noise (Table 5)
+# ----------------------------------------------------------------------------------------------
+
+
+def add_noise(points: torch.Tensor, sigma_n: float, seed: int) -> torch.Tensor:
+    """Input noise of Table 5: ``points + sigma_n * e`` with e ~ N(0, I_3) drawn independently per point.
+
+    The jitter is isotropic: a uniformly random direction with a chi(3)-distributed length, each
+    coordinate with standard deviation ``sigma_n`` (variance sigma_n^2, as in the paper). It comes
+    from a generator seeded with ``seed`` (the same seed gives the same jitter; for a fixed seed the
+    noise levels differ only by the factor sigma_n). points: (..., 3) float; returns a new tensor of
+    the same shape. The normals are not touched: they stay those of the clean surface.
+    """
+    if not isinstance(points, torch.Tensor) or not points.is_floating_point() or points.shape[-1:] != (3,):
+        raise ValueError(f"points must be a float tensor of shape (..., 3), got {getattr(points, 'shape', points)!r}")
+    if not (isinstance(sigma_n, (int, float)) and math.isfinite(sigma_n) and sigma_n >= 0):
+        raise ValueError(f"sigma_n must be a finite non-negative number, got {sigma_n!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    generator = torch.Generator().manual_seed(seed)
+    e = torch.randn(points.shape, generator=generator, dtype=points.dtype)
+    return points + sigma_n * e.to(points.device)
+
+
+def _noise_seed(data_seed: int, split: str) -> int:
+    return int(np.random.SeedSequence([data_seed, ("train", "val", "test").index(split), 5]).generate_state(1)[0])
+
+
+def noisy_splits(splits: dict[str, ShapeSet], sigma_n: float, data_seed: int) -> dict[str, ShapeSet]:
+    """Every split with :func:`add_noise` on its points (one seed per split, derived from ``data_seed``);
+    normals, labels and indices unchanged. The noise is drawn once: every epoch sees the same noisy clouds."""
+    return {name: dataclasses.replace(s, points=add_noise(s.points, sigma_n, _noise_seed(data_seed, name)))
+            for name, s in splits.items()}
+
+
+# ----------------------------------------------------------------------------------------------
+# Why the averaged compactness form
+# ----------------------------------------------------------------------------------------------
+
+
+def compactness_figures(category: str = "chair", n_shapes: int = 8, n_points: int = 1024,
+                        lambda_compact: float = 0.1, used: Sequence[int] = (1, 2, 6)) -> dict:
+    """The numbers behind :func:`compactness_note`.
+
+    ``one_box``: the reconstruction loss of the crudest abstraction, ONE cuboid per shape (its
+    axis-aligned bounding box), i.e. the mean over points of the distance of Eq. (5) with
+    sigma_s = 0, averaged over the first ``n_shapes`` shapes of the category's collection (seed 0);
+    no allocation can save more reconstruction loss than that. ``literal[k]`` / ``averaged[k]``:
+    lambda_1 L_compact when the points are shared equally by k of the M cuboids, with Eq. (6) as
+    printed (sum over cuboids) and in the averaged form (= Eq. (6) / M^2). Also ``M``.
+    """
+    m = COURSE_NUM_CUBOIDS[category]
+    shapes = load_splits(TrainConfig(category=category, n_shapes=max(n_shapes, 10), n_points=n_points))
+    points = torch.cat([shapes[s].points for s in ("train", "val", "test")])[:n_shapes]
+    normals = torch.cat([shapes[s].normals for s in ("train", "val", "test")])[:n_shapes]
+    lo, hi = points.amin(dim=1), points.amax(dim=1)
+    centers, half = ((lo + hi) / 2)[:, None], ((hi - lo) / 2).clamp_min(1e-4)[:, None]
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(len(points), 1, 4)
+    one_box = float(point_to_cuboid_distance(points, normals, centers, identity, half, sigma_s=0.0).mean())
+
+    def weighted(k: int, average: bool) -> float:
+        w = torch.zeros(m, dtype=torch.float64)
+        w[:k] = 1.0 / k
+        return lambda_compact * float(compactness_loss(w, 0.01, average_over_cuboids=average))
+
+    return {"M": m, "n_shapes": len(points), "one_box": one_box,
+            "literal": {k: weighted(k, False) for k in used}, "averaged": {k: weighted(k, True) for k in used}}
+
+
+def compactness_note(category: str = "chair", lambda_compact: float = 0.1) -> str:
+    """A short, computed argument why Eq. (6) as printed (a sum over cuboids) collapses at course scale
+    (numbers from :func:`compactness_figures`)."""
+    f = compactness_figures(category, lambda_compact=lambda_compact)
+    m, lit, avg = f["M"], f["literal"], f["averaged"]
+    return (
+        f"Why the averaged compactness (course scale, {category}, M = {m}, lambda_1 = {lambda_compact}): the "
+        f"reconstruction loss of the crudest abstraction, one bounding box per shape, is only {f['one_box']:.4f} "
+        f"(mean over {f['n_shapes']} shapes, Eq. (5) with sigma_s = 0), so no allocation can save more than that. "
+        f"With Eq. (6) as printed (a sum over cuboids), lambda_1 L_compact is {lit[1]:.3f} for 1 used "
+        f"cuboid, {lit[2]:.3f} for 2 and {lit[6]:.3f} for 6 (equal shares): a second cuboid alone costs "
+        f"{lit[2] - lit[1]:.2f}, more than the whole reconstruction loss of one box, so more cuboids cannot pay for "
+        f"themselves and the minimiser puts (nearly) all points into one cuboid: the abstraction collapses. The "
+        f"averaged form of the authors' code divides this by M^2 = {m * m}: {avg[1]:.5f}, {avg[2]:.5f}, "
+        f"{avg[6]:.5f}; an extra cuboid costs {avg[2] - avg[1]:.5f}, the size of what splitting a part saves, so "
+        f"the number of cuboids becomes a real trade-off (the effective weight on Eq. (6) is lambda_1 / M^2)."
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Runs
+# ----------------------------------------------------------------------------------------------
+
+TASKS = ("train", "score", "fit")
+
+
+@dataclass
+class Run:
+    """One independent unit of work.
+
+    name: unique, file-system safe (its folder under the runs directory).
+    key: the run's coordinates in the table, JSON values (e.g. {"lambda_1": 0.1, "seed": 0}); the
+      summary averages over ``seed``.
+    config: the :class:`~cuboidlib.train.TrainConfig` (for "fit" and "score" tasks: the data it uses).
+    task: "train" (train, select on validation, score on test), "score" (score the checkpoint
+      ``options["checkpoint"]``) or "fit" (per-shape fitting of every test shape, ``options["fit"]``
+      a FitConfig dict).
+    options: scoring options, JSON values: ``method`` (name in the table, default "network"),
+      ``sigma_n`` (input noise at train and test time; also scored against the clean shapes),
+      ``segmentation`` ("normal" / "nearest_surface": segment by the nearest existing cuboid under
+      that distance instead of W), ``reference_points`` (also score against this many points of the
+      same test shapes), ``baseline`` (also score the k-means boxes with K = round(N_AC)).
+    """
+
+    name: str
+    key: dict
+    config: TrainConfig
+    task: str = "train"
+    options: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        if not self.name or any(c in self.name for c in "/\\ "):
+            raise ValueError(f"run name must be non-empty without '/', '\\' or spaces, got {self.name!r}")
+
+
+def _test_shapes(config: TrainConfig, options: dict) -> tuple[ShapeSet, ShapeSet]:
+    """(the test split the method sees, the clean test split)."""
+    splits = load_splits(config)
+    seen = noisy_splits(splits, options["sigma_n"], config.data_seed) if options.get("sigma_n") else splits
+    return seen["test"], splits["test"]
+
+
+def nearest_cuboid_segmentation(shapes: ShapeSet, pred: CuboidPredictions, distance: str) -> torch.Tensor:
+    """(S, N) segment of every point = its nearest EXISTING cuboid under ``distance`` ("normal": Eq. (5)
+    with sigma_s = 0; "nearest_surface"), the allocation of the variants without a segmentation branch
+    (P2C-Dis, Chamfer-Dis of Table 4)."""
+    cuboids = (pred.centers, pred.quaternions, pred.half_sizes)
+    if distance == "normal":
+        d = point_to_cuboid_distance(shapes.points, shapes.normals, *cuboids, sigma_s=0.0)
+    elif distance == "nearest_surface":
+        d = nearest_surface_distance(shapes.points, *cuboids)
+    else:
+        raise ValueError(f"segmentation distance must be 'normal' or 'nearest_surface', got {distance!r}")
+    return d.masked_fill(~pred.exists[:, None, :], math.inf).argmin(dim=-1)
+
+
+def _metrics(scores: dict) -> dict:
+    """The flat numbers of a :func:`score_cuboids` result: cd, nc, miou, n_ac."""
+    return {"cd": scores["chamfer"][0]["value"], "nc": scores["normal_consistency"], "miou": scores["miou"],
+            "n_ac": scores["n_ac"]}
+
+
+def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dict) -> list[dict]:
+    """Score a trained network on the test split of ``config`` (see :class:`Run` for ``options``).
+
+    Returns result dicts ``{"method", "metrics", "scores"}``: the network's, and the k-means
+    baseline's with ``options["baseline"]``. The network's metrics hold cd, nc, miou, n_ac (against
+    the input it saw), cd_clean / nc_clean (noise: against the clean test shapes) and cd_reference /
+    nc_reference (against ``reference_points`` points of the same shapes).
+    """
+    test, clean = _test_shapes(config, options)
+    centroids = config.loss_config.centers_from_allocation
+    pred, fallback = predict_cuboids(model, test, centers_from_allocation=centroids)
+    if options.get("segmentation"):
+        pred.segmentation = nearest_cuboid_segmentation(test, pred, options["segmentation"])
+    scores = score_cuboids(test, pred)
+    scores.update(num_cuboids=pred.num_segments, shapes_without_existing_cuboid=fallback)
+    metrics = _metrics(scores)
+    if options.get("sigma_n") is not None:
+        scores["clean"] = score_cuboids(ShapeSet(clean.points, clean.normals, None, clean.indices), pred)
+        metrics.update(cd_clean=scores["clean"]["chamfer"][0]["value"], nc_clean=scores["clean"]["normal_consistency"])
+    if options.get("reference_points"):
+        ref = load_splits(config.replace(n_points=options["reference_points"]))["test"]
+        scores["reference"] = score_cuboids(ShapeSet(ref.points, ref.normals, None, ref.indices), pred)
+        metrics.update(cd_reference=scores["reference"]["chamfer"][0]["value"],
+                       nc_reference=scores["reference"]["normal_consistency"])
+    results = [{"method": options.get("method", "network"), "metrics": metrics, "scores": scores}]
+    if options.get("baseline"):
+        boxes = max(1, round(metrics["n_ac"]))
+        base = evaluate_baseline(test, boxes)
+        results.append({"method": "k-means boxes", "metrics": {**_metrics(base), "boxes": boxes}, "scores": base})
+    return results
+
+
+def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
+    """Per-shape fitting (:func:`cuboidlib.fitting.fit_cuboids`) of every test shape, scored like the network."""
+    test, _ = _test_shapes(config, options)
+    fit_config = FitConfig(**options["fit"])
+    fit = fit_cuboids(test.points, test.normals, fit_config)
+    c = fit.cuboids
+    pred = CuboidPredictions(c.centers, c.quaternions, c.half_sizes, c.exists, fit.labels)
+    scores = score_cuboids(test, pred)
+    scores.update(num_cuboids=pred.num_segments, fit_seconds=round(fit.elapsed_s, 1),
+                  converged=int(fit.converged.sum()))
+    return [{"method": options.get("method", "per-shape fitting"), "metrics": _metrics(scores), "scores": scores}]
+
+
+def execute(run: Run, run_dir: str | os.PathLike) -> dict:
+    """Do one :class:`Run` in this process with one torch thread; return its record (JSON types).
+
+    Never raises for a failing run: the record then has ``status`` "failed" and the ``error``.
+    """
+    start, cpu_start = time.perf_counter(), time.process_time()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    record = {"name": run.name, "key": run.key, "task": run.task, "options": run.options,
+              "config": run.config.to_dict(), "run_dir": str(run_dir)}
+    try:
+        if run.task == "fit":
+            record["results"] = _fit_and_score(run.config, run.options)
+        else:
+            if run.task == "train":
+                splits = load_splits(run.config)
+                if run.options.get("sigma_n"):
+                    splits = noisy_splits(splits, run.options["sigma_n"], run.config.data_seed)
+                trained = Trainer(run.config, run_dir, quiet=True, splits=splits).run()
+                record["training"] = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
+                                      "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1)}
+                checkpoint = Path(run_dir) / "best.pt"
+            else:
+                checkpoint = Path(run.options["checkpoint"])
+            record["checkpoint"] = str(checkpoint)
+            model, _ = load_model(checkpoint)
+            record["results"] = score_network(model, run.config, run.options)
+        record["status"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - recorded; the other runs go on
+        record.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc())
+    finally:
+        torch.set_num_threads(threads)
+    record["seconds"] = round(time.perf_counter() - start, 1)
+    record["cpu_seconds"] = round(time.process_time() - cpu_start, 1)  # = wall time on a quiet machine (1 thread)
+    return record
+
+
+# ----------------------------------------------------------------------------------------------
+# Time estimates (one torch thread, small network, batch 16)
+# ----------------------------------------------------------------------------------------------
+
+#: Seconds per training step of the small network (M = 16, batch 16, one thread, Eq. (5) loss) by points
+#: per shape, measured as CPU time of a single process (wall time on a quiet machine).
+STEP_SECONDS = {256: 0.124, 1024: 0.552, 4096: 3.78}
+#: Extra cost of the Chamfer-Dis loss (sampling 1024 points on the cuboids, bidirectional Chamfer).
+CHAMFER_FACTOR = 1.4
+#: Seconds per run outside the steps: start-up, data, validations, checkpoints, scoring the test split.
+RUN_OVERHEAD = 25.0
+#: Per-shape fitting: seconds per shape and per Adam step at 1024 points and M = 16 (one thread).
+FIT_SECONDS = 0.0028
+
+
+def _step_seconds(n_points: int) -> float:
+    """Log-log interpolation (and extrapolation) of :data:`STEP_SECONDS`."""
+    xs = sorted(STEP_SECONDS)
+    lx = math.log(n_points)
+    i = 0 if n_points <= xs[1] else 1
+    x0, x1 = xs[i], xs[i + 1]
+    t = (lx - math.log(x0)) / (math.log(x1) - math.log(x0))
+    return math.exp((1 - t) * math.log(STEP_SECONDS[x0]) + t * math.log(STEP_SECONDS[x1]))
+
+
+def estimate_seconds(run: Run) -> float:
+    """Estimated wall time of ``run`` on a quiet machine (one thread; see :data:`STEP_SECONDS`)."""
+    c = run.config
+    m = c.model_config.num_cuboids
+    if run.task == "fit":
+        shapes = round(c.n_shapes * c.split_fractions[2])
+        steps = run.options["fit"].get("steps", FitConfig().steps)
+        fit_m = run.options["fit"].get("num_cuboids", 16)
+        return RUN_OVERHEAD + FIT_SECONDS * shapes * steps * (c.n_points / 1024) * (fit_m / 16)
+    if run.task == "score":
+        return RUN_OVERHEAD
+    step = _step_seconds(c.n_points) * (c.batch_size / 16) * (1 + 0.01 * (m - 16))
+    if c.loss_config.distance == "chamfer":
+        step *= CHAMFER_FACTOR
+    steps = c.max_steps if c.max_steps is not None else c.epochs * 100
+    return RUN_OVERHEAD * max(1.0, c.n_points / 1024) + steps * step
+
+
+def estimate_makespan(runs: Sequence[Run], jobs: int) -> float:
+    """Estimated wall time of :func:`run_all`: longest runs first, each to the least loaded worker."""
+    loads = [0.0] * max(1, jobs)
+    for t in sorted((estimate_seconds(r) for r in runs), reverse=True):
+        loads[loads.index(min(loads))] += t
+    return max(loads)
+
+
+def run_all(runs: Sequence[Run], runs_dir: str | os.PathLike, jobs: int = 2,
+            report: Callable[[str], None] = print) -> list[dict]:
+    """Do every run, ``jobs`` at a time in separate processes (``jobs = 1``: in this process), longest
+    first; returns the records in the order of ``runs``. ``report`` gets one line per finished run."""
+    names = [r.name for r in runs]
+    if len(set(names)) != len(names):
+        raise ValueError("run names must be unique")
+    runs_dir = Path(runs_dir)
+    order = sorted(range(len(runs)), key=lambda i: -estimate_seconds(runs[i]))
+    records: list[dict | None] = [None] * len(runs)
+
+    def done(i: int, record: dict) -> None:
+        records[i] = record
+        finished = sum(r is not None for r in records)
+        report(f"[{finished}/{len(runs)}] {_describe(record)}")
+
+    if jobs == 1:
+        for i in order:
+            done(i, execute(runs[i], runs_dir / runs[i].name))
+        return records
+    # Children inherit these before importing torch: one OpenMP / MKL thread each.
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+    context = multiprocessing.get_context("spawn")  # no fork of a process whose torch threads are running
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+        futures = {pool.submit(execute, runs[i], runs_dir / runs[i].name): i for i in order}
+        for future in as_completed(futures):
+            i = futures[future]
+            try:
+                record = future.result()
+            except Exception as exc:  # noqa: BLE001 - a worker process died
+                record = {"name": runs[i].name, "key": runs[i].key, "task": runs[i].task, "options": runs[i].options,
+                          "config": runs[i].config.to_dict(), "status": "failed",
+                          "error": f"worker process failed: {type(exc).__name__}: {exc}"}
+            done(i, record)
+    return records
+
+
+def _describe(record: dict) -> str:
+    """One line about a finished run."""
+    key = ", ".join(f"{k} {v}" for k, v in record["key"].items())
+    if record["status"] != "ok":
+        return f"{record['name']} ({key}): FAILED: {record['error']}"
+    parts = []
+    for result in record["results"]:
+        m = result["metrics"]
+        miou = "-" if m["miou"] is None else f"{100 * m['miou']:.1f}"
+        parts.append(f"{result['method']}: CD {m['cd']:.5f}, mIoU {miou}, N_AC {m['n_ac']:.2f}")
+    steps = f"{record['training']['steps']} steps, " if "training" in record else ""
+    return f"{record['name']} ({key}): " + "; ".join(parts) + f" ({steps}{record['seconds']:.0f} s)"
+
+
+# ----------------------------------------------------------------------------------------------
+# Summaries and tables
+# ----------------------------------------------------------------------------------------------
+
+
+def result_rows(records: Sequence[dict]) -> list[dict]:
+    """One flat row per (successful run, method): the run's key, ``method`` and the metrics."""
+    rows = []
+    for record in records:
+        if record.get("status") != "ok":
+            continue
+        for result in record["results"]:
+            rows.append({**record["key"], "method": result["method"], **result["metrics"]})
+    return rows
+
+
+def summarize(rows: Sequence[dict], by: Sequence[str], metrics: Sequence[str]) -> list[dict]:
+    """Group ``rows`` by the ``by`` fields (in order of first appearance) and give, per metric, the
+    mean, the sample standard deviation over the group (None for one value) and the count n.
+
+    Each summary row holds the ``by`` fields, ``seeds`` (the seeds of the group) and
+    ``<metric>_mean``, ``<metric>_sd``, ``<metric>_n`` (missing / None values are left out).
+    """
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row.get(k) for k in by), []).append(row)
+    out = []
+    for values, members in groups.items():
+        summary = dict(zip(by, values))
+        summary["seeds"] = [m["seed"] for m in members if "seed" in m]
+        for metric in metrics:
+            xs = [float(m[metric]) for m in members if m.get(metric) is not None]
+            summary[f"{metric}_mean"] = statistics.fmean(xs) if xs else None
+            summary[f"{metric}_sd"] = statistics.stdev(xs) if len(xs) > 1 else None
+            summary[f"{metric}_n"] = len(xs)
+        out.append(summary)
+    return out
+
+
+def mean_sd(row: dict, metric: str, scale: float = 1.0, digits: int = 3) -> str:
+    """"mean ± sd" of a summary row's metric (times ``scale``), "mean" for one value, "-" for none."""
+    mean, sd = row.get(f"{metric}_mean"), row.get(f"{metric}_sd")
+    if mean is None:
+        return "-"
+    text = f"{scale * mean:.{digits}f}"
+    return text if sd is None else f"{text} ± {scale * sd:.{digits}f}"
+
+
+def paper_value(value: float | None, digits: int = 3) -> str:
+    """A number typed from the paper, or "-" where the paper gives none."""
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def text_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain-text table: first column left-aligned, the others right-aligned."""
+    widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
+
+    def fmt(row) -> str:
+        return "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
+
+    return "\n".join([fmt(headers), fmt(["-" * w for w in widths]), *(fmt(r) for r in rows)])
+
+
+CD_CONVENTION = ("CD: Chamfer distance x 1000, squared L2, mean over points per direction, sum of the two "
+                 "directions, 4096 points sampled on the existing cuboids (cuboidlib.metrics.ChamferConvention()); "
+                 "mean ± sample standard deviation over seeds where there are several.")
+
+
+def machine() -> dict:
+    """The machine a script ran on (CPUs, torch and Python versions, platform, load average)."""
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+    return {"cpus": os.cpu_count(), "torch_threads_per_run": 1, "torch": torch.__version__,
+            "python": platform.python_version(), "platform": platform.platform(),
+            "processor": platform.processor() or platform.machine(),
+            "load_average_at_start": None if load is None else [round(x, 2) for x in load]}
+
+
+def write_results(path_stem: Path, payload: dict, summary: Sequence[dict]) -> tuple[Path, Path]:
+    """Write ``<stem>.json`` (``payload``, which must hold the provenance) and ``<stem>.csv`` (``summary``)."""
+    path_stem.parent.mkdir(parents=True, exist_ok=True)
+    json_path, csv_path = path_stem.with_suffix(".json"), path_stem.with_suffix(".csv")
+    json_path.write_text(json.dumps(payload, indent=1, default=_json_default) + "\n")
+    columns: list[str] = []
+    for row in summary:
+        columns += [k for k in row if k not in columns]
+    with csv_path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, columns)
+        writer.writeheader()
+        for row in summary:
+            writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
+    return json_path, csv_path
+
+
+def _json_default(value):
+    if isinstance(value, (np.integer, np.floating)):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+# ----------------------------------------------------------------------------------------------
+# The command line shared by every script
+# ----------------------------------------------------------------------------------------------
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line (plus where to find help), exit code 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def categories_option(allowed: Sequence[str]):
+    """An argparse type for a comma-separated list of categories out of ``allowed``."""
+
+    def parse(text: str) -> tuple[str, ...]:
+        chosen = tuple(dict.fromkeys(c.strip() for c in text.split(",") if c.strip()))
+        bad = [c for c in chosen if c not in allowed]
+        if bad or not chosen:
+            raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(allowed)}, got {text!r}")
+        return chosen
+
+    return parse
+
+
+@dataclass
+class Experiment:
+    """One script: a table (or figure) of the paper.
+
+    name: the file stem, also the results name. title: one line. paper: the paper's numbers as
+    typed from the .tex (with the table they come from). default_steps / default_seeds: the full
+    run's settings, chosen so that it finishes within 45 minutes on a quiet 2-core machine with two
+    jobs. build_runs(scale, args) -> runs. report(records, scale, args) -> (summary rows, printed
+    text). add_arguments(parser): script options. notes(scale, args) -> extra lines for the output.
+    finish(records, scale, args, out_stem) -> extra files written (e.g. a figure) and their paths.
+    """
+
+    name: str
+    title: str
+    description: str
+    paper: dict
+    default_steps: int
+    default_seeds: int
+    build_runs: Callable[[Scale, argparse.Namespace], list[Run]]
+    report: Callable[[list[dict], Scale, argparse.Namespace], tuple[list[dict], str]]
+    add_arguments: Callable[[argparse.ArgumentParser], None] | None = None
+    notes: Callable[[Scale, argparse.Namespace], list[str]] | None = None
+    finish: Callable[[list[dict], Scale, argparse.Namespace, Path], list[Path]] | None = None
+    compactness_category: str = "chair"
+
+    def parser(self) -> argparse.ArgumentParser:
+        p = _Parser(prog=f"{self.name}.py", description=self.description,
+                    formatter_class=argparse.RawDescriptionHelpFormatter,
+                    epilog=f"Writes experiments/results/{self.name}.json (command, git commit, machine, wall time, "
+                           f"settings, every run's config and metrics, the table) and {self.name}.csv (the table); "
+                           f"--quick writes {self.name}_quick.*. Course scale: {COURSE_SCALE['shapes_per_category']} "
+                           f"shapes, {COURSE_SCALE['points_per_shape']} points, ModelConfig.small(), batch 16, "
+                           "averaged compactness (see experiments/runner.py).")
+        p.add_argument("--quick", action="store_true",
+                       help="tiny network, 12 shapes, 1/8 of the points, 2 steps, 1 seed: runs in seconds, "
+                            "numbers meaningless (for tests)")
+        p.add_argument("--steps", type=_positive_int,
+                       help=f"training steps per run (default {self.default_steps}; quick: 2)")
+        p.add_argument("--shapes", type=_positive_int,
+                       help=f"shapes per collection (default {COURSE_SCALE['shapes_per_category']}; quick: 12)")
+        p.add_argument("--seeds", type=_positive_int,
+                       help=f"training seeds 0..N-1 per configuration (default {self.default_seeds}; quick: 1)")
+        p.add_argument("--jobs", type=_positive_int, default=2,
+                       help="runs at a time, each in its own process with one torch thread (default 2)")
+        p.add_argument("--out", default=str(RESULTS_DIR), help="folder of the results (default experiments/results)")
+        p.add_argument("--runs-dir", default=str(RUNS_DIR),
+                       help="folder of the training runs (checkpoints, logs; default runs/experiments)")
+        p.add_argument("--plan", action="store_true", help="print the runs and the estimated time, run nothing")
+        if self.add_arguments is not None:
+            self.add_arguments(p)
+        return p
+
+
+def _scale(args: argparse.Namespace, experiment: Experiment) -> Scale:
+    steps = args.steps or (2 if args.quick else experiment.default_steps)
+    shapes = args.shapes or (12 if args.quick else COURSE_SCALE["shapes_per_category"])
+    seeds = args.seeds or (1 if args.quick else experiment.default_seeds)
+    return Scale(quick=args.quick, steps=steps, n_shapes=shapes, seeds=tuple(range(seeds)))
+
+
+def _scale_words(scale: Scale) -> str:
+    if scale.quick:
+        return "Quick scale: the tiny network of runner.QUICK_MODEL."
+    return ("Course scale (runner.COURSE_SCALE): " + "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in
+                                                              COURSE_SCALE.items() if k != "split") + ".")
+
+
+def _check_runs(runs: Sequence[Run]) -> None:
+    """Refuse settings that cannot work before anything runs (one readable message)."""
+    if not runs:
+        raise ValueError("nothing to run")
+    for run in runs:
+        c = run.config
+        sizes = {k: len(v) for k, v in split_indices(c.n_shapes, c.split_fractions, c.split_seed).items()}
+        if run.task == "train" and sizes["train"] < c.batch_size:
+            raise ValueError(f"--shapes {c.n_shapes} leaves {sizes['train']} training shapes, fewer than the batch "
+                             f"size {c.batch_size}; use more shapes")
+        if sizes["test"] < 2:
+            raise ValueError(f"--shapes {c.n_shapes} leaves {sizes['test']} test shape(s); the label transfer "
+                             "needs at least 2")
+
+
+def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
+    """Parse the command line, print the plan, run, print the table, write the results. Exit code:
+    0, 1 if some run failed (the results are still written), 2 for bad arguments."""
+    parser = experiment.parser()
+    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        scale = _scale(args, experiment)
+        runs = experiment.build_runs(scale, args)
+        _check_runs(runs)
+    except (ValueError, FileNotFoundError) as exc:
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
+    estimate = estimate_makespan(runs, args.jobs)
+    print(f"{experiment.title}")
+    print(f"{len(runs)} runs ({'QUICK: tiny network, numbers meaningless' if scale.quick else 'course scale'}), "
+          f"{scale.steps} training steps each, {scale.n_shapes} shapes per collection, "
+          f"seeds {list(scale.seeds)}, {args.jobs} at a time"
+          + ("" if scale.quick else f"; estimated wall time on a quiet 2-core machine: {estimate / 60:.1f} min"),
+          flush=True)
+    if args.plan:
+        for run in runs:
+            print(f"  {run.name}: {run.task}" + ("" if scale.quick else f", ~{estimate_seconds(run) / 60:.1f} min"))
+        return 0
+    stem = Path(args.out) / (experiment.name + ("_quick" if scale.quick else ""))
+    started = datetime.now(timezone.utc)
+    runs_dir = Path(args.runs_dir) / experiment.name / started.strftime("%Y%m%d-%H%M%S-%f")
+    info = machine()
+    start = time.perf_counter()
+    records = run_all(runs, runs_dir, args.jobs)
+    wall = time.perf_counter() - start
+    summary, table = experiment.report(records, scale, args)
+    first = runs[0].config
+    sizes = {k: len(v) for k, v in split_indices(first.n_shapes, first.split_fractions, first.split_seed).items()}
+    notes = [f"Settings: {scale.steps} training steps of batch {first.batch_size} per run (the paper: 1000 epochs of "
+             f"batch 32), {scale.n_shapes} shapes per collection ({sizes['train']} train / {sizes['val']} validation "
+             f"/ {sizes['test']} test), {first.n_points} points per shape unless the table varies it, seeds "
+             f"{list(scale.seeds)}, model selected on the validation loss. " + _scale_words(scale), DATA_NOTE]
+    if scale.quick:
+        notes.insert(0, "QUICK RUN: tiny network, 12 shapes, 2 steps; the numbers test the machinery and mean nothing.")
+    notes += experiment.notes(scale, args) if experiment.notes else []
+    if not scale.quick:
+        notes.append(compactness_note(experiment.compactness_category))
+    failed = [r for r in records if r["status"] != "ok"]
+    text = "\n".join([table, "", *notes, f"Wall time {wall / 60:.1f} min for {len(runs)} runs, {args.jobs} at a time."])
+    if failed:
+        text += "\n" + "\n".join(f"FAILED {r['name']}: {r['error']}" for r in failed)
+    extra = []
+    if experiment.finish is not None:
+        try:
+            extra = experiment.finish(records, scale, args, stem)
+        except Exception as exc:  # noqa: BLE001 - the results are written all the same
+            text += f"\nFAILED to write the extra files: {type(exc).__name__}: {exc}"
+            failed.append({"name": "finish", "error": str(exc)})
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+    payload = {
+        "experiment": experiment.name,
+        "title": experiment.title,
+        "command": shlex.join(["python", f"experiments/{experiment.name}.py", *argv]),
+        "git_commit": git_commit(REPO),
+        "machine": {**info, "load_average_at_end": None if load is None else [round(x, 2) for x in load],
+                    "jobs": args.jobs},
+        "started": started.isoformat(timespec="seconds"),
+        "wall_seconds": round(wall, 1),
+        "estimated_seconds": round(estimate, 1),
+        "settings": {"quick": scale.quick, "steps": scale.steps, "shapes": scale.n_shapes, "seeds": list(scale.seeds),
+                     "jobs": args.jobs, "runs_dir": str(runs_dir)},
+        "course_scale": COURSE_SCALE,
+        "paper": experiment.paper,
+        "summary": summary,
+        "table": text,
+        "notes": notes,
+        "failed": [r["name"] for r in failed],
+        "files": [str(p) for p in extra],
+        "runs": records,
+    }
+    json_path, csv_path = write_results(stem, payload, summary)
+    print()
+    print(text)
+    print("wrote " + ", ".join(str(p) for p in [json_path, csv_path, *extra]))
+    return 1 if failed else 0

@@ -1,0 +1,397 @@
+"""Tests of experiments/: the shared runner and the configurations of the per-table scripts.
+
+The scripts live outside the package (``python experiments/table6_compactness.py``) and import their
+sibling ``runner``; the tests import them the same way, with ``experiments/`` on the path.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = ROOT / "experiments"
+sys.path.insert(0, str(EXPERIMENTS))
+
+import fig11_point_density as fig11  # noqa: E402
+import runner  # noqa: E402
+import table1_2_comparison as table12  # noqa: E402
+import table4_supervision as table4  # noqa: E402
+import table5_distance as table5  # noqa: E402
+import table6_compactness as table6  # noqa: E402
+import table7_num_cuboids as table7  # noqa: E402
+
+from cuboidlib.evaluation import CuboidPredictions  # noqa: E402
+from cuboidlib.train import ShapeSet, TrainConfig  # noqa: E402
+
+SCRIPTS = (table4, table5, table6, table7, fig11, table12)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def cache_dir(tmp_path_factory):
+    """A private collection cache for this module (also handed to subprocesses)."""
+    path = tmp_path_factory.mktemp("cache")
+    old = os.environ.get("CUBOIDLIB_CACHE")
+    os.environ["CUBOIDLIB_CACHE"] = str(path)
+    yield path
+    if old is None:
+        del os.environ["CUBOIDLIB_CACHE"]
+    else:
+        os.environ["CUBOIDLIB_CACHE"] = old
+
+
+@pytest.fixture(autouse=True)
+def restore_threads():
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
+def _runs(module, *argv: str) -> tuple[runner.Scale, list[runner.Run]]:
+    """The runs a script would do for ``argv`` (nothing is trained)."""
+    args = module.EXPERIMENT.parser().parse_args(list(argv))
+    scale = runner._scale(args, module.EXPERIMENT)
+    return scale, module.EXPERIMENT.build_runs(scale, args)
+
+
+def _keys(runs, *fields) -> set[tuple]:
+    return {tuple(r.key[f] for f in fields) for r in runs}
+
+
+# ----------------------------------------------------------------------------------------------
+# Course scale
+# ----------------------------------------------------------------------------------------------
+
+
+def test_course_scale_is_the_configuration_of_the_committed_checkpoints():
+    for category, m in (("airplane", 20), ("chair", 16), ("table", 14), ("animal", 16)):
+        c = runner.course_config(category, steps=300)
+        assert (c.n_shapes, c.n_points, c.batch_size, c.lr, c.max_steps, c.num_threads) == (256, 1024, 16, 2e-3, 300, 1)
+        assert c.max_minutes is None and c.checkpoint_every == 300 and c.validate_every == 100
+        assert c.model_config.num_cuboids == m and c.model_config.global_dim == 256  # ModelConfig.small
+        assert c.loss_config.compactness_average and c.loss_config.lambda_compact == 0.02
+        stored = json.loads((ROOT / "data_samples" / "checkpoints" / "configs" / f"{category}.json").read_text())
+        for name in ("n_shapes", "n_points", "data_seed", "split_seed", "lr", "batch_size", "seed", "num_threads"):
+            assert getattr(c, name) == stored[name], f"{category}: {name} differs from the committed config"
+        assert {k: getattr(c.model_config, k) for k in stored["model"]} == {
+            k: tuple(v) if isinstance(v, list) else v for k, v in stored["model"].items()}
+        assert {k: getattr(c.loss_config, k) for k in stored["loss"]} == stored["loss"]
+
+
+def test_quick_scale_uses_the_tiny_network_and_fewer_points():
+    quick = runner.Scale(quick=True, steps=2, n_shapes=12, seeds=(0,))
+    c = quick.config("chair", seed=3, n_points=4096, model={"num_cuboids": 8})
+    assert (c.n_points, c.n_shapes, c.max_steps, c.seed, c.batch_size) == (512, 12, 2, 3, 4)
+    assert c.model_config.global_dim == 16 and c.model_config.num_cuboids == 8
+    assert quick.points(256) == 32 and runner.Scale(False, 10, 256, (0,)).points(256) == 256
+
+
+def test_compactness_figures_show_why_the_literal_sum_collapses():
+    f = runner.compactness_figures("chair", n_shapes=4, n_points=128)
+    lit, avg, m = f["literal"], f["averaged"], f["M"]
+    for k in lit:  # the averaged form is Eq. (6) divided by M^2
+        assert avg[k] == pytest.approx(lit[k] / m**2, rel=1e-9)
+    # by hand: equal shares 1/k on k of M cuboids, lambda 0.1, eps 0.01
+    assert lit[2] == pytest.approx(0.1 * (2 * math.sqrt(0.5 + 0.01) + (m - 2) * 0.1) ** 2)
+    assert lit[2] - lit[1] > f["one_box"] > avg[2] - avg[1] > 0  # a 2nd cuboid: too dear literally, affordable averaged
+    assert "collapses" in runner.compactness_note("chair")
+
+
+# ----------------------------------------------------------------------------------------------
+# Noise (Table 5)
+# ----------------------------------------------------------------------------------------------
+
+
+def test_noise_is_seeded_isotropic_and_has_the_requested_standard_deviation():
+    points = torch.zeros(64, 1024, 3)
+    a = runner.add_noise(points, 0.02, seed=7)
+    assert torch.equal(a, runner.add_noise(points, 0.02, seed=7))
+    assert not torch.equal(a, runner.add_noise(points, 0.02, seed=8))
+    e = a.reshape(-1, 3).double()
+    n = e.shape[0]
+    assert e.std(dim=0).sub(0.02).abs().max() < 0.01 * 0.02  # per coordinate, sd error ~ 0.2 %
+    assert e.mean(dim=0).abs().max() < 5 * 0.02 / math.sqrt(n)
+    cov = (e.T @ e) / n
+    off_diagonal = cov - torch.diag(torch.diag(cov))
+    assert off_diagonal.abs().max() < 0.02 * 0.02**2  # isotropic: no correlation between coordinates
+    # the same draw at every level: sigma 0.01 is exactly half of sigma 0.02
+    torch.testing.assert_close(runner.add_noise(points, 0.01, seed=7), a / 2)
+    assert torch.equal(runner.add_noise(points + 1, 0.0, seed=7), points + 1)
+
+
+def test_noisy_splits_jitter_only_the_positions_with_one_seed_per_split():
+    shapes = ShapeSet(torch.zeros(3, 50, 3), torch.nn.functional.normalize(torch.ones(3, 50, 3), dim=-1),
+                      torch.zeros(3, 50, dtype=torch.long), torch.arange(3))
+    noisy = runner.noisy_splits({"train": shapes, "val": shapes, "test": shapes}, 0.03, data_seed=0)
+    assert not torch.equal(noisy["train"].points, noisy["test"].points)
+    for split in noisy.values():
+        assert torch.equal(split.normals, shapes.normals) and torch.equal(split.labels, shapes.labels)
+        assert not torch.equal(split.points, shapes.points)
+    assert torch.equal(runner.noisy_splits({"test": shapes}, 0.03, 0)["test"].points, noisy["test"].points)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"sigma_n": -0.1}, "sigma_n must be a finite non-negative"),
+        ({"sigma_n": float("nan")}, "sigma_n must be a finite non-negative"),
+        ({"seed": -1}, "seed must be a non-negative integer"),
+        ({"points": torch.zeros(4, 2)}, r"points must be a float tensor of shape \(\.\.\., 3\)"),
+    ],
+)
+def test_noise_rejects_bad_arguments(kwargs, match):
+    args = {"points": torch.zeros(4, 3), "sigma_n": 0.01, "seed": 0, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        runner.add_noise(**args)
+
+
+# ----------------------------------------------------------------------------------------------
+# Pieces of the runner
+# ----------------------------------------------------------------------------------------------
+
+
+def test_nearest_cuboid_segmentation_picks_the_nearest_existing_cuboid():
+    # two unit cubes centred at x = -2 and x = +2, a third at the origin that does not exist
+    centers = torch.tensor([[[-2.0, 0, 0], [2.0, 0, 0], [0.0, 0, 0]]])
+    quats = torch.tensor([[1.0, 0, 0, 0]]).expand(1, 3, 4)
+    half = torch.full((1, 3, 3), 0.5)
+    exists = torch.tensor([[True, True, False]])
+    points = torch.tensor([[[-2.5, 0, 0], [2.5, 0.1, 0], [0.4, 0, 0], [-0.4, 0, 0]]])
+    # the inner points face the cube they belong to: Eq. (5) measures to the face whose normal matches
+    normals = torch.tensor([[[-1.0, 0, 0], [1.0, 0, 0], [-1.0, 0, 0], [1.0, 0, 0]]])
+    shapes = ShapeSet(points, normals, None, torch.arange(1))
+    pred = CuboidPredictions(centers, quats, half, exists, torch.zeros(1, 4, dtype=torch.long))
+    everything = CuboidPredictions(centers, quats, half, torch.ones(1, 3, dtype=torch.bool), pred.segmentation)
+    for distance in ("normal", "nearest_surface"):
+        # by hand: x = 0.4 is 1.1 from cube 1 (its -x face at 1.5), 1.9 or 2.9 from cube 0, 0.1 or 0.9 from cube 2
+        assert torch.equal(runner.nearest_cuboid_segmentation(shapes, pred, distance), torch.tensor([[0, 1, 1, 0]]))
+        assert torch.equal(runner.nearest_cuboid_segmentation(shapes, everything, distance), torch.tensor([[0, 1, 2, 2]]))
+    with pytest.raises(ValueError, match="segmentation distance must be"):
+        runner.nearest_cuboid_segmentation(shapes, pred, "chamfer")
+
+
+def test_summary_gives_mean_and_sample_sd_over_seeds():
+    rows = [{"lambda_1": 0.1, "seed": s, "method": "network", "cd": v, "miou": None} for s, v in enumerate((1.0, 2.0, 6.0))]
+    rows.append({"lambda_1": 0.2, "seed": 0, "method": "network", "cd": 5.0, "miou": 0.5})
+    first, second = runner.summarize(rows, ("lambda_1",), ("cd", "miou"))
+    assert first["lambda_1"] == 0.1 and first["seeds"] == [0, 1, 2]
+    assert first["cd_mean"] == pytest.approx(3.0) and first["cd_sd"] == pytest.approx(math.sqrt(7.0))  # (4+1+9)/2
+    assert first["miou_mean"] is None and first["miou_n"] == 0
+    assert second["cd_sd"] is None and runner.mean_sd(second, "cd", 1000, 1) == "5000.0"
+    assert runner.mean_sd(first, "cd", 2, 2) == "6.00 ± 5.29"
+
+
+def test_estimated_wall_time_spreads_the_runs_over_the_jobs():
+    scale = runner.Scale(False, 100, 256, (0,))
+    runs = [runner.Run(f"r{i}", {"i": i}, scale.config("chair", model={"num_cuboids": m}))
+            for i, m in enumerate((8, 16, 24))]
+    each = [runner.estimate_seconds(r) for r in runs]
+    assert each[0] < each[1] < each[2]  # more cuboids, slower steps
+    assert runner.estimate_makespan(runs, 1) == pytest.approx(sum(each))
+    assert runner.estimate_makespan(runs, 2) == pytest.approx(max(each[2], each[0] + each[1]))
+    assert runner.estimate_makespan(runs, 3) == pytest.approx(max(each))
+
+
+# ----------------------------------------------------------------------------------------------
+# The runs of every script
+# ----------------------------------------------------------------------------------------------
+
+
+def test_table4_runs_the_three_supervisions_on_three_categories():
+    _, runs = _runs(table4)
+    assert _keys(runs, "category", "variant") == {(c, v) for c in ("chair", "table", "airplane")
+                                                  for v in ("P2C-Dis", "Chamfer-Dis", "P2C-Seg")}
+    assert len(runs) == 9 and all(r.config.max_steps == 700 and r.config.loss_config.lambda_compact == 0 for r in runs)
+    by = {r.key["variant"]: r for r in runs}
+    assert by["P2C-Dis"].config.loss_config.allocation == "nearest_cuboid"
+    assert by["Chamfer-Dis"].config.loss_config.distance == "chamfer"
+    p2c = by["P2C-Seg"].config.loss_config
+    assert (p2c.distance, p2c.allocation) == ("normal", "segmentation") and "segmentation" not in by["P2C-Seg"].options
+    assert (by["P2C-Dis"].options["segmentation"], by["Chamfer-Dis"].options["segmentation"]) == ("normal",
+                                                                                                   "nearest_surface")
+
+
+def test_table5_crosses_four_noise_levels_with_four_distances():
+    _, runs = _runs(table5)
+    assert len(runs) == 16 and {r.config.category for r in runs} == {"chair"}
+    assert _keys(runs, "sigma_n", "distance", "sigma_s") == {
+        (n, d, s) for n in (0.0, 0.01, 0.02, 0.03) for d, s in (("Distance", 0.0), ("Normal", 0.0), ("Normal", 0.025),
+                                                                ("Normal", 0.05))}
+    for r in runs:
+        loss = r.config.loss_config
+        assert r.options["sigma_n"] == r.key["sigma_n"] and loss.sigma_s == r.key["sigma_s"]
+        assert loss.distance == ("nearest_surface" if r.key["distance"] == "Distance" else "normal")
+
+
+def test_table6_has_exactly_the_four_lambdas_with_three_seeds():
+    _, runs = _runs(table6)
+    assert sorted({r.key["lambda_1"] for r in runs}) == [0.0, 0.05, 0.1, 0.2]
+    assert len(runs) == 12 and {r.key["seed"] for r in runs} == {0, 1, 2}
+    for r in runs:
+        assert r.config.loss_config.lambda_compact == r.key["lambda_1"] and r.config.loss_config.compactness_average
+        assert r.config.seed == r.key["seed"]
+    _, quick = _runs(table6, "--quick", "--with-sum-form")
+    assert len(quick) == 5
+    assert [r.config.loss_config.compactness_average for r in quick if r.key["form"] == "sum"] == [False]
+
+
+def test_table7_sweeps_the_number_of_cuboids_on_three_categories():
+    _, runs = _runs(table7, "--seeds", "2")
+    assert _keys(runs, "category", "M") == {(c, m) for c in ("chair", "table", "airplane") for m in (8, 12, 16, 20, 24)}
+    assert len(runs) == 30 and all(r.config.model_config.num_cuboids == r.key["M"] for r in runs)
+    _, chairs = _runs(table7, "--categories", "chair")
+    assert {r.config.category for r in chairs} == {"chair"} and len(chairs) == 5
+
+
+def test_fig11_trains_with_three_densities_scored_against_the_densest():
+    _, runs = _runs(fig11)
+    assert [r.config.n_points for r in runs] == [256, 1024, 4096]
+    assert all(r.options["reference_points"] == 4096 and r.config.category == "chair" for r in runs)
+
+
+def test_tables_1_2_compare_three_methods_on_four_categories():
+    _, runs = _runs(table12)
+    assert _keys(runs, "category") == {("airplane",), ("chair",), ("table",), ("animal",)}
+    train = [r for r in runs if r.task == "train"]
+    fits = [r for r in runs if r.task == "fit"]
+    assert len(train) == len(fits) == 4 and all(r.options["baseline"] for r in train)
+    assert {r.config.category: r.options["fit"]["num_cuboids"] for r in fits} == runner.COURSE_NUM_CUBOIDS
+
+
+def test_every_full_run_is_estimated_to_finish_within_45_minutes():
+    for module in SCRIPTS:
+        _, runs = _runs(module)
+        assert runner.estimate_makespan(runs, 2) < 45 * 60, module.EXPERIMENT.name
+
+
+# ----------------------------------------------------------------------------------------------
+# End to end
+# ----------------------------------------------------------------------------------------------
+
+
+def _tiny_experiment() -> runner.Experiment:
+    """Two variants x one seed of a tiny network (the runner's own end-to-end check)."""
+
+    def build(scale, args):
+        return [runner.Run(f"lambda{lam:g}", {"lambda_1": lam, "seed": 0},
+                           scale.config("chair", loss={"lambda_compact": lam}), options={"sigma_n": 0.01})
+                for lam in (0.0, 0.2)]
+
+    def report(records, scale, args):
+        summary = runner.summarize(runner.result_rows(records), ("lambda_1",), ("cd", "cd_clean", "miou", "n_ac"))
+        return summary, runner.text_table(["lambda_1", "CD"], [[str(r["lambda_1"]), runner.mean_sd(r, "cd", 1000)]
+                                                                for r in summary])
+
+    return runner.Experiment("tiny", "a tiny experiment", "two variants", {"source": "none"}, 3, 1, build, report)
+
+
+def test_runner_end_to_end_writes_results_with_provenance(tmp_path, capsys):
+    code = runner.main(_tiny_experiment(), ["--quick", "--steps", "3", "--jobs", "1", "--out", str(tmp_path / "res"),
+                                            "--runs-dir", str(tmp_path / "runs")])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "QUICK RUN" in out and "wrote" in out
+    data = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
+    for field in ("command", "git_commit", "machine", "started", "wall_seconds", "settings", "course_scale", "paper",
+                  "summary", "table", "runs"):
+        assert field in data, field
+    assert data["command"].startswith("python experiments/tiny.py --quick --steps 3")
+    assert data["machine"]["cpus"] == os.cpu_count() and data["machine"]["torch"] == torch.__version__
+    assert data["machine"]["jobs"] == 1 and data["wall_seconds"] > 0
+    assert data["settings"]["steps"] == 3 and data["failed"] == []
+    assert [r["key"]["lambda_1"] for r in data["runs"]] == [0.0, 0.2]
+    for record in data["runs"]:
+        config = TrainConfig.from_dict(record["config"])  # the complete config of every run
+        assert config.loss_config.lambda_compact == record["key"]["lambda_1"] and config.max_steps == 3
+        assert record["status"] == "ok" and record["training"]["steps"] == 3
+        assert Path(record["checkpoint"]).is_file()
+        metrics = record["results"][0]["metrics"]
+        assert all(math.isfinite(metrics[k]) for k in ("cd", "nc", "cd_clean", "nc_clean", "n_ac"))
+        assert 0 <= metrics["miou"] <= 1
+    with open(tmp_path / "res" / "tiny_quick.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["lambda_1"]) for r in rows] == [0.0, 0.2] and all(float(r["cd_mean"]) > 0 for r in rows)
+
+    # the trained tiny network doubles as a "released checkpoint" for Tables 1-2 --checkpoints
+    released = tmp_path / "released"
+    released.mkdir()
+    shutil.copy(data["runs"][0]["checkpoint"], released / "chair.pt")
+    _, runs = _runs(table12, "--quick", "--categories", "chair", "--checkpoints", str(released))
+    assert [r.task for r in runs] == ["score", "fit"] and runs[0].config.n_shapes == 12
+    record = runner.execute(runs[0], tmp_path / "score")
+    assert record["status"] == "ok", record.get("error")
+    assert [r["method"] for r in record["results"]] == ["network", "k-means boxes"]
+    boxes = record["results"][1]["metrics"]["boxes"]
+    assert boxes == max(1, round(record["results"][0]["metrics"]["n_ac"]))
+
+
+def test_a_failing_run_is_recorded_and_the_others_go_on(tmp_path):
+    scale = runner.Scale(True, 2, 12, (0,))
+    good = runner.Run("good", {"seed": 0}, scale.config("chair"))
+    bad = runner.Run("bad", {"seed": 1}, scale.config("chair"), task="score", options={"checkpoint": str(tmp_path / "no.pt")})
+    lines = []
+    records = runner.run_all([bad, good], tmp_path, jobs=1, report=lines.append)
+    assert [r["status"] for r in records] == ["failed", "ok"]
+    assert "no.pt" in records[0]["error"] and any("FAILED" in line for line in lines)
+
+
+def test_fig11_quick_writes_the_figure(tmp_path):
+    code = runner.main(fig11.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
+                                          str(tmp_path / "runs")])
+    assert code == 0
+    data = json.loads((tmp_path / "fig11_point_density_quick.json").read_text())
+    assert [r["key"]["points"] for r in data["runs"]] == [32, 128, 512]
+    assert all(r["results"][0]["metrics"]["cd_reference"] > 0 for r in data["runs"])
+    png = tmp_path / "fig11_point_density_quick.png"
+    assert data["files"] == [str(png)] and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_table6_quick_runs_in_worker_processes(tmp_path):
+    """The real command line, two jobs in separate processes (the only subprocess of this file)."""
+    result = subprocess.run(
+        [sys.executable, str(EXPERIMENTS / "table6_compactness.py"), "--quick", "--jobs", "2", "--out", str(tmp_path),
+         "--runs-dir", str(tmp_path / "runs")],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    data = json.loads((tmp_path / "table6_compactness_quick.json").read_text())
+    assert sorted(r["key"]["lambda_1"] for r in data["runs"]) == [0.0, 0.05, 0.1, 0.2]
+    assert data["machine"]["jobs"] == 2 and all(r["status"] == "ok" for r in data["runs"])
+    assert "Table 6" in result.stdout and "N_AC (paper)" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "module, argv, match",
+    [
+        (table6, ["--jobs", "0"], "argument --jobs: expected a positive integer, got '0'"),
+        (table6, ["--steps", "many"], "argument --steps: expected a positive integer"),
+        (table4, ["--categories", "chair,sofa"], "argument --categories: expected a comma-separated list"),
+        (table7, ["--shapes", "20"], "--shapes 20 leaves 14 training shapes, fewer than the batch size 16"),
+        (table12, ["--checkpoints", "/nonexistent"], "/nonexistent/airplane.pt: no such checkpoint"),
+        (table12, ["--checkpoints", "/nonexistent", "--seeds", "2"], "takes no --seeds"),
+        (fig11, ["--quick", "--shape", "5"], "--shape 5 is out of range: the test split has 2 shapes"),
+        (table4, ["--lambda-compact", "-1"], "--lambda-compact must be a non-negative number"),
+    ],
+)
+def test_bad_arguments_give_one_line_errors(module, argv, match, capsys):
+    with pytest.raises(SystemExit) as exc:
+        runner.main(module.EXPERIMENT, argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "error:" in err and match in err, err
+
+
+def test_every_script_has_help_naming_its_table():
+    for module in SCRIPTS:
+        text = module.EXPERIMENT.parser().format_help()
+        assert "--quick" in text and "--jobs" in text and f"experiments/results/{module.EXPERIMENT.name}.json" in text
+        assert module.__doc__.splitlines()[0] in text
