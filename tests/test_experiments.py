@@ -79,6 +79,7 @@ def test_course_scale_is_the_configuration_of_the_committed_checkpoints():
         assert c.max_minutes is None and c.checkpoint_every == 300 and c.validate_every == 100
         assert c.model_config.num_cuboids == m and c.model_config.global_dim == 256  # ModelConfig.small
         assert c.loss_config.compactness_average and c.loss_config.lambda_compact == 0.02
+        assert c.loss_config.existence_min_points == 24
         stored = json.loads((ROOT / "data_samples" / "checkpoints" / "configs" / f"{category}.json").read_text())
         for name in ("n_shapes", "n_points", "data_seed", "split_seed", "lr", "batch_size", "seed", "num_threads"):
             assert getattr(c, name) == stored[name], f"{category}: {name} differs from the committed config"
