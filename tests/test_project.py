@@ -118,3 +118,46 @@ def test_notebook_has_the_course_form(nb_path):
 @pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
 def test_notebook_stays_small(nb_path):
     assert nb_path.stat().st_size < 5 * 2**20, f"{nb_path.name} is larger than 5 MiB"
+
+
+# ----------------------------------------------------------------------------------------------
+# The committed checkpoints
+# ----------------------------------------------------------------------------------------------
+
+CHECKPOINTS = ROOT / "data_samples" / "checkpoints"
+CATEGORIES = ("chair", "table", "airplane", "animal")
+PAPER_M = {"chair": 16, "table": 14, "airplane": 20, "animal": 16}
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_committed_checkpoint_comes_with_its_card_and_config(category):
+    from cuboidlib.checkpoint import load_checkpoint
+    from cuboidlib.release import read_card
+    from cuboidlib.train import TrainConfig
+
+    path = CHECKPOINTS / f"{category}.pt"
+    state = load_checkpoint(path)  # weights_only: nothing in the file can run code
+    assert "optimizer" not in state, "a released checkpoint holds weights and config only"
+    card = read_card(path)
+    config = TrainConfig.from_dict(card["config"])
+    assert card["config"] == state["config"] and config.category == category
+    assert config.model_config.num_cuboids == PAPER_M[category]
+    expected = f"cuboidlib train --config data_samples/checkpoints/configs/{category}.json --out runs/{category} " \
+               f"--release data_samples/checkpoints/{category}.pt"
+    assert card["command"] == expected
+    stored = json.loads((CHECKPOINTS / "configs" / f"{category}.json").read_text())
+    for key, value in stored.items():
+        got = card["config"][key]
+        assert got == ({**got, **value} if isinstance(value, dict) else value), f"{category}: {key} differs"
+    assert card["training"]["seconds"] <= 30 * 60, "each checkpoint trains in at most 30 minutes"
+    assert card["test"]["split"] == "test"
+
+
+def test_readme_checkpoint_table_is_the_cards():
+    from cuboidlib.release import cards_markdown
+
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"<!-- checkpoints:start -->\n(.*?)\n<!-- checkpoints:end -->", text, re.S)
+    assert block, "README misses the checkpoint table markers"
+    expected = cards_markdown([CHECKPOINTS / f"{c}.pt" for c in CATEGORIES])
+    assert block.group(1).strip() == expected, "regenerate README's table with cuboidlib.release.cards_markdown"
