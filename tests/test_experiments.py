@@ -36,24 +36,7 @@ from cuboidlib.train import ShapeSet, TrainConfig  # noqa: E402
 SCRIPTS = (table4, table5, table6, table7, fig11, table12)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def cache_dir(tmp_path_factory):
-    """A private collection cache for this module (also handed to subprocesses)."""
-    path = tmp_path_factory.mktemp("cache")
-    old = os.environ.get("CUBOIDLIB_CACHE")
-    os.environ["CUBOIDLIB_CACHE"] = str(path)
-    yield path
-    if old is None:
-        del os.environ["CUBOIDLIB_CACHE"]
-    else:
-        os.environ["CUBOIDLIB_CACHE"] = old
-
-
-@pytest.fixture(autouse=True)
-def restore_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("cache_dir", "restore_threads")
 
 
 def _runs(module, *argv: str) -> tuple[runner.Scale, list[runner.Run]]:

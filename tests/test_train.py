@@ -30,24 +30,7 @@ TINY_MODEL = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=
                                cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
 
 
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory):
-    """A private collection cache for this module (also handed to subprocesses)."""
-    path = tmp_path_factory.mktemp("cache")
-    old = os.environ.get("CUBOIDLIB_CACHE")
-    os.environ["CUBOIDLIB_CACHE"] = str(path)
-    yield path
-    if old is None:
-        del os.environ["CUBOIDLIB_CACHE"]
-    else:
-        os.environ["CUBOIDLIB_CACHE"] = old
-
-
-@pytest.fixture(autouse=True)
-def restore_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("restore_threads")
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,29 @@
+"""Fixtures shared by the test modules that train networks."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import torch
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """A private collection cache for the module (``CUBOIDLIB_CACHE``, also handed to subprocesses)."""
+    path = tmp_path_factory.mktemp("cache")
+    old = os.environ.get("CUBOIDLIB_CACHE")
+    os.environ["CUBOIDLIB_CACHE"] = str(path)
+    yield path
+    if old is None:
+        del os.environ["CUBOIDLIB_CACHE"]
+    else:
+        os.environ["CUBOIDLIB_CACHE"] = old
+
+
+@pytest.fixture
+def restore_threads():
+    """Put torch's thread count back after a test that sets it (the trainer does)."""
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
