@@ -30,6 +30,7 @@ import torch
 
 from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .evaluation import evaluate_baseline, evaluate_model, format_table
+from .train import TrainConfig, load_splits
 
 __all__ = ["CARD_FORMAT", "card_path", "git_commit", "publish_run", "read_card", "cards_markdown"]
 
@@ -84,9 +85,6 @@ def publish_run(
     state = load_checkpoint(run_dir / "best.pt")
     training = _training_summary(run_dir, state.get("step"))
     save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
-
-    from .train import TrainConfig, load_splits  # here: train imports the evaluation stack lazily too
-
     config = TrainConfig.from_dict(state["config"])
     model, _ = load_model(dest)
     shapes = load_splits(config)["test"]

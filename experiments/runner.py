@@ -67,7 +67,7 @@ from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.losses import LossConfig, compactness_loss
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.release import git_commit
-from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits, read_config_file, split_indices
+from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits, split_indices
 
 __all__ = [
     "REPO",
@@ -153,11 +153,8 @@ def course_config(category: str, steps: int, **changes) -> TrainConfig:
     """
     if category not in COURSE_NUM_CUBOIDS:
         raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
-    data = TrainConfig().to_dict()
-    for key, value in read_config_file(CONFIG_DIR / f"{category}.json").items():
-        data[key] = {**data[key], **value} if key in ("model", "loss") else value
-    data.update(max_steps=steps, max_minutes=None, checkpoint_every=steps, validate_every=min(100, steps))
-    base = TrainConfig.from_dict(data)
+    base = TrainConfig.load_json(CONFIG_DIR / f"{category}.json").replace(
+        max_steps=steps, max_minutes=None, checkpoint_every=steps, validate_every=min(100, steps))
     return base.replace(**changes) if changes else base
 
 
