@@ -92,7 +92,7 @@ EXPERIMENT = runner.Experiment(
           "sigma_n 0-0.03 (chairs; Chamfer distance, normal consistency)",
     description=__doc__,
     paper=_json_paper(),
-    default_steps=450,
+    default_steps=600,
     default_seeds=1,
     build_runs=build_runs,
     report=report,

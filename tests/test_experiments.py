@@ -191,7 +191,7 @@ def test_table4_runs_the_three_supervisions_on_three_categories():
     _, runs = _runs(table4)
     assert _keys(runs, "category", "variant") == {(c, v) for c in ("chair", "table", "airplane")
                                                   for v in ("P2C-Dis", "Chamfer-Dis", "P2C-Seg")}
-    assert len(runs) == 9 and all(r.config.max_steps == 700 and r.config.loss_config.lambda_compact == 0 for r in runs)
+    assert len(runs) == 9 and all(r.config.max_steps == 600 and r.config.loss_config.lambda_compact == 0 for r in runs)
     by = {r.key["variant"]: r for r in runs}
     assert by["P2C-Dis"].config.loss_config.allocation == "nearest_cuboid"
     assert by["Chamfer-Dis"].config.loss_config.distance == "chamfer"
@@ -356,7 +356,7 @@ def test_table6_quick_runs_in_worker_processes(tmp_path):
         (table6, ["--jobs", "0"], "argument --jobs: expected a positive integer, got '0'"),
         (table6, ["--steps", "many"], "argument --steps: expected a positive integer"),
         (table4, ["--categories", "chair,sofa"], "argument --categories: expected a comma-separated list"),
-        (table7, ["--shapes", "20"], "--shapes 20 leaves 14 training shapes, fewer than the batch size 16"),
+        (table7, ["--shapes", "10"], "--shapes 10 leaves 7 training shapes, fewer than the batch size 8"),
         (table12, ["--checkpoints", "/nonexistent"], "/nonexistent/airplane.pt: no such checkpoint"),
         (table12, ["--checkpoints", "/nonexistent", "--seeds", "2"], "takes no --seeds"),
         (fig11, ["--quick", "--shape", "5"], "--shape 5 is out of range: the test split has 2 shapes"),
