@@ -23,6 +23,7 @@ EXPERIMENTS = ROOT / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
 
 import fig11_point_density as fig11  # noqa: E402
+import paper_vs_code  # noqa: E402
 import runner  # noqa: E402
 import table1_2_comparison as table12  # noqa: E402
 import table4_supervision as table4  # noqa: E402
@@ -31,9 +32,10 @@ import table6_compactness as table6  # noqa: E402
 import table7_num_cuboids as table7  # noqa: E402
 
 from cuboidlib.evaluation import CuboidPredictions  # noqa: E402
+from cuboidlib.losses import LossConfig  # noqa: E402
 from cuboidlib.train import ShapeSet, TrainConfig  # noqa: E402
 
-SCRIPTS = (table4, table5, table6, table7, fig11, table12)
+SCRIPTS = (table4, table5, table6, table7, fig11, table12, paper_vs_code)
 
 
 pytestmark = pytest.mark.usefixtures("cache_dir", "restore_threads")
@@ -223,6 +225,20 @@ def test_table6_has_exactly_the_four_lambdas_with_three_seeds():
     _, quick = _runs(table6, "--quick", "--with-sum-form")
     assert len(quick) == 5
     assert [r.config.loss_config.compactness_average for r in quick if r.key["form"] == "sum"] == [False]
+
+
+def test_paper_vs_code_goes_from_the_printed_losses_to_the_authors_code_one_change_at_a_time():
+    _, runs = _runs(paper_vs_code)
+    assert len(runs) == 8 and {r.key["seed"] for r in runs} == {0, 1}
+    losses = {r.key["variant"]: r.config.loss_config for r in runs if r.key["seed"] == 0}
+    assert list(losses) == [name for name, _ in paper_vs_code.VARIANTS]
+    # The first is the paper exactly, the last the authors' code exactly (with the shared lambda_1 = 0.1).
+    assert losses["paper"] == LossConfig()
+    assert losses["authors' code"] == LossConfig.authors_code()
+    changed = [{f for f in paper_vs_code.PAPER_LOSS if getattr(a, f) != getattr(b, f)}
+               for a, b in zip(list(losses.values()), list(losses.values())[1:])]
+    assert changed == [{"compactness_average"}, {"existence_min_points"}, {"centers_from_allocation"}]
+    assert len({r.config.replace(loss={}, seed=0).model_config for r in runs}) == 1  # one network for all
 
 
 def test_table7_sweeps_the_number_of_cuboids_on_three_categories():
