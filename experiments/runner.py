@@ -776,8 +776,10 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     estimate = estimate_makespan(runs, args.jobs)
     print(f"{experiment.title}")
+    trains = any(run.task == "train" for run in runs)
     print(f"{len(runs)} runs ({'QUICK: tiny network, numbers meaningless' if scale.quick else 'course scale'}), "
-          f"{scale.steps} training steps each, {scale.n_shapes} shapes per collection, "
+          + (f"{scale.steps} training steps each, " if trains else "no training, ")
+          + f"{scale.n_shapes} shapes per collection, "
           f"seeds {list(scale.seeds)}, {args.jobs} at a time"
           + ("" if scale.quick else f"; estimated wall time on a quiet 2-core machine: {estimate / 60:.1f} min"),
           flush=True)

@@ -1,0 +1,53 @@
+"""Time the whole course as a learner runs it: every lesson top to bottom in a fresh kernel.
+
+Each notebook in notebooks/ is executed from a fresh Python kernel (nbclient, the engine of
+``jupyter nbconvert --execute``) in its own folder, as the learner opens it. The committed files
+are not touched: the executed copies are discarded. Prints each lesson's wall time, then the total.
+
+Example::
+
+    python benchmarks/bench_course.py                 # all lessons
+    python benchmarks/bench_course.py --lessons 01 06  # the lessons whose names start with 01 or 06
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import nbformat
+from nbclient import NotebookClient
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lessons", nargs="+", metavar="PREFIX",
+                        help="only the notebooks whose names start with these prefixes (default: all)")
+    parser.add_argument("--timeout", type=int, default=900, help="seconds allowed per cell (default 900)")
+    args = parser.parse_args()
+    paths = sorted(NOTEBOOKS.glob("[0-9][0-9]_*.ipynb"))
+    if args.lessons:
+        paths = [p for p in paths if p.name.startswith(tuple(args.lessons))]
+    if not paths:
+        raise SystemExit(f"no lesson matches {args.lessons} in {NOTEBOOKS}")
+    print(f"{len(paths)} lessons, each from a fresh kernel; {os.cpu_count()} CPUs; "
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}")
+    total = 0.0
+    for path in paths:
+        nb = nbformat.read(path, as_version=4)
+        client = NotebookClient(nb, timeout=args.timeout, kernel_name="python3",
+                                resources={"metadata": {"path": str(NOTEBOOKS)}})
+        start = time.perf_counter()
+        client.execute()
+        seconds = time.perf_counter() - start
+        total += seconds
+        print(f"  {path.name:<36} {seconds:6.1f} s")
+    print(f"whole course: {total / 60:.1f} min ({total:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
