@@ -20,34 +20,41 @@ its model selection uses the test split) are not part of this comparison.
 from __future__ import annotations
 
 import argparse
+import re
+
+from cuboidlib.losses import LossConfig
 
 import runner
 
-#: (name, LossConfig fields changed from the paper's) in cumulative order.
-VARIANTS = (
-    ("paper", {}),
-    ("+ averaged compactness", {"compactness_average": True}),
-    ("+ 24-point existence", {"compactness_average": True, "existence_min_points": 24.0}),
-    ("authors' code", {"compactness_average": True, "existence_min_points": 24.0, "centers_from_allocation": True}),
-)
-#: Every LossConfig field a variant may change, reset to the paper's value first (the course config
-#: itself uses the averaged form and the 24-point target).
-PAPER_LOSS = {"lambda_compact": 0.1, "compactness_average": False, "existence_min_points": None,
-              "centers_from_allocation": False}
+#: The code's choices in the order they are added, each a LossConfig field set to its authors_code() value.
+CODE_CHOICES = (("+ averaged compactness", "compactness_average"), ("+ 24-point existence", "existence_min_points"),
+                ("authors' code", "centers_from_allocation"))
+#: Every LossConfig field a variant may change, at the paper's value (``LossConfig()``); set explicitly
+#: because the course config itself uses the averaged form and the 24-point target.
+PAPER_LOSS = {f: getattr(LossConfig(), f) for f in ("lambda_compact", *(field for _, field in CODE_CHOICES))}
 
 
-def loss_of(changes: dict) -> dict:
-    """The loss fields of a variant: the paper's (``PAPER_LOSS``) with ``changes``."""
-    return {**PAPER_LOSS, **changes}
+def _variants() -> list[tuple[str, dict]]:
+    """(name, loss fields) of each variant: the paper's, then one more of the code's choices per row."""
+    loss, code = dict(PAPER_LOSS), LossConfig.authors_code()
+    out = [("paper", dict(loss))]
+    for name, field in CODE_CHOICES:
+        loss[field] = getattr(code, field)
+        out.append((name, dict(loss)))
+    return out
+
+
+#: (name, LossConfig fields) in cumulative order.
+VARIANTS = tuple(_variants())
 
 
 def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run]:
     runs = []
-    for i, (name, changes) in enumerate(VARIANTS):
+    for i, (name, loss) in enumerate(VARIANTS):
+        slug = re.sub(r"[^a-z0-9]+", "-", name.lower().replace("'", "")).strip("-")
         for seed in scale.seeds:
-            runs.append(runner.Run(f"v{i}_{name.strip('+ ').replace(' ', '-').replace(chr(39), '')}_seed{seed}",
-                                   {"variant": name, "seed": seed},
-                                   scale.config("chair", seed, loss=loss_of(changes))))
+            runs.append(runner.Run(f"v{i}_{slug}_seed{seed}", {"variant": name, "seed": seed},
+                                   scale.config("chair", seed, loss=loss)))
     return runs
 
 

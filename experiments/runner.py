@@ -66,8 +66,8 @@ from cuboidlib.checkpoint import load_model
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
 from cuboidlib.evaluation import CuboidPredictions, evaluate_baseline, predict_cuboids, score_cuboids
 from cuboidlib.fitting import FitConfig, fit_cuboids
-from cuboidlib.losses import LossConfig, compactness_loss
-from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.losses import compactness_loss
+from cuboidlib.model import CuboidAbstractionNet
 from cuboidlib.release import git_commit
 from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits, split_indices
 
@@ -127,8 +127,10 @@ COURSE_SCALE = {
 }
 
 #: Batch size of the experiment runs: half the checkpoints' 16 halves the time per step; with both, the
-#: first cuboids pass the existence threshold near step 350 (the committed chair log and a 600-step run
-#: of the same config at batch 8), so a 600-step run ends with a trained existence branch.
+#: first cuboids pass the existence threshold near step 350 (column n_existing of the chair checkpoint's
+#: training log, and of ``cuboidlib train --config data_samples/checkpoints/configs/chair.json --batch-size 8
+#: --max-steps 600 --set max_minutes=null --out runs/batch8``), so a 600-step run ends with a trained
+#: existence branch.
 EXPERIMENT_BATCH_SIZE = 8
 
 #: The tiny network of --quick runs (same structure, a step takes milliseconds).
