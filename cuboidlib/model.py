@@ -47,6 +47,7 @@ __all__ = [
     "CuboidDecoder",
     "ShapeAbstraction",
     "CuboidSegmentation",
+    "allocation_saturation",
     "CuboidPrediction",
     "ModelOutput",
     "CuboidAbstractionNet",
@@ -82,6 +83,9 @@ class ModelConfig:
     seg_dim: width of g^p and g^c in the segmentation branch (paper: 64).
     attention_scale: divide the affinity A_mn = g^c_m . g^p_n by sqrt(seg_dim) before the softmax,
         as the public code does; the paper's Eq. (2) has no scale (default False).
+    cosine_affinity: None (the paper's dot product, default) or a positive number s: the affinity
+        becomes A_mn = s cos(g^c_m, g^p_n), bounded by |A_mn| <= s, so the softmax of Eq. (3) can
+        never saturate beyond a gap of 2 s (a change of the course's recipe, not the paper's).
     negative_slope: slope of every LeakyReLU (public code: 0.2).
 
     ``to_dict`` / ``from_dict`` convert to and from a dict of plain JSON types (for checkpoints).
@@ -98,6 +102,7 @@ class ModelConfig:
     seg_dim: int = 64
     attention_scale: bool = False
     negative_slope: float = 0.2
+    cosine_affinity: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("edge_dims", "cuboid_feature_dims"):
@@ -121,6 +126,13 @@ class ModelConfig:
                 )
         if not isinstance(self.attention_scale, bool):
             raise ValueError(f"ModelConfig.attention_scale must be True or False, got {self.attention_scale!r}")
+        cos = self.cosine_affinity
+        if cos is not None:
+            if isinstance(cos, bool) or not isinstance(cos, (int, float)) or not 0.0 < cos <= 1000.0:
+                raise ValueError(f"ModelConfig.cosine_affinity must be None or a number in (0, 1000], got {cos!r}")
+            if self.attention_scale:
+                raise ValueError("ModelConfig.cosine_affinity and attention_scale exclude each other; set one of them")
+            object.__setattr__(self, "cosine_affinity", float(cos))
         slope = self.negative_slope
         if isinstance(slope, bool) or not isinstance(slope, (int, float)) or not 0.0 <= slope < 1.0:
             raise ValueError(f"ModelConfig.negative_slope must be a number in [0, 1), got {slope!r}")
@@ -663,23 +675,49 @@ class CuboidSegmentation(nn.Module):
     g^p = point features reduced to seg_dim, g^c = cuboid features reduced to seg_dim (bias-free
     linear layers); affinity A[b, n, m] = g^c_m . g^p_n (Eq. (2), stored (B, N, M)); W = softmax of
     A over the M cuboids (Eq. (3)); argmax over M gives the segmentation. ``attention_scale=True``
-    divides A by sqrt(seg_dim) as the public code does (the paper has no scale).
+    divides A by sqrt(seg_dim) as the public code does (the paper has no scale);
+    ``cosine_affinity=s`` uses A = s cos(g^c_m, g^p_n) instead, bounded by s.
     """
 
-    def __init__(self, point_dim: int, cuboid_dim: int, seg_dim: int = 64, attention_scale: bool = False):
+    def __init__(self, point_dim: int, cuboid_dim: int, seg_dim: int = 64, attention_scale: bool = False,
+                 cosine_affinity: float | None = None):
         super().__init__()
         self.point_proj = nn.Linear(point_dim, seg_dim, bias=False)
         self.cuboid_proj = nn.Linear(cuboid_dim, seg_dim, bias=False)
         self.scale = 1.0 / math.sqrt(seg_dim) if attention_scale else 1.0
+        self.cosine_affinity = cosine_affinity
 
     def forward(
         self, point_features: torch.Tensor, cuboid_features: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, N, C_p), (B, M, C_c) -> affinity logits (B, N, M), allocation W (B, N, M)."""
-        affinity = self.point_proj(point_features) @ self.cuboid_proj(cuboid_features).transpose(1, 2)
-        if self.scale != 1.0:
+        g_p, g_c = self.point_proj(point_features), self.cuboid_proj(cuboid_features)
+        if self.cosine_affinity is not None:
+            g_p, g_c = F.normalize(g_p, dim=-1), F.normalize(g_c, dim=-1)
+        affinity = g_p @ g_c.transpose(1, 2)
+        if self.cosine_affinity is not None:
+            affinity = affinity * self.cosine_affinity
+        elif self.scale != 1.0:
             affinity = affinity * self.scale
         return affinity, torch.softmax(affinity, dim=-1)
+
+
+@torch.no_grad()
+def allocation_saturation(affinity: torch.Tensor, threshold: float = 0.999) -> tuple[torch.Tensor, torch.Tensor]:
+    """How hard the allocation softmax (Eq. (3)) is: affinity logits (B, N, M) -> two scalars.
+
+    Returns the fraction of points whose largest weight max_m W_nm exceeds ``threshold`` and the
+    median gap between the largest and the second-largest logit. A gap g leaves the other cuboids
+    a weight of at most e^-g, and the loss gradient that could move a point to them shrinks with it:
+    a point whose gap is 30 is allocated for good.
+    """
+    if affinity.shape[-1] < 2:
+        zero = affinity.new_zeros(())
+        return affinity.new_ones(()), zero
+    top = affinity.topk(2, dim=-1).values
+    gap = top[..., 0] - top[..., 1]
+    largest = torch.softmax(affinity, dim=-1).amax(dim=-1)
+    return (largest > threshold).to(affinity.dtype).mean(), gap.flatten().median()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -728,7 +766,8 @@ class CuboidAbstractionNet(nn.Module):
         self.embedding = FeatureEmbedding(cfg)
         self.abstraction = ShapeAbstraction(cfg)
         self.segmentation = CuboidSegmentation(
-            cfg.point_feature_dim, cfg.cuboid_feature_dims[-1], cfg.seg_dim, cfg.attention_scale
+            cfg.point_feature_dim, cfg.cuboid_feature_dims[-1], cfg.seg_dim, cfg.attention_scale,
+            cfg.cosine_affinity,
         )
 
     def _check_points(self, points) -> torch.Tensor:

@@ -55,7 +55,7 @@ import torch
 
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
 from .losses import LossConfig, total_loss
-from .model import CuboidAbstractionNet, ModelConfig
+from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation
 from .shapes import CATEGORIES, PART_NAMES
 
 __all__ = [
@@ -71,10 +71,15 @@ __all__ = [
     "TrainResult",
     "Trainer",
     "LOSS_TERMS",
+    "DIAGNOSTICS",
 ]
 
 #: The loss terms logged at every step (Eq. (9) and its four terms), in log-file order.
 LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl")
+#: Diagnostics logged beside the loss terms: the mean number of cuboids with existence above 0.5, the
+#: fraction of points whose allocation is saturated (largest weight above 0.999) and the median gap
+#: between the best and second-best affinity logit (see :func:`cuboidlib.model.allocation_saturation`).
+DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -385,27 +390,33 @@ def validation_loss(
     Evaluation mode: BatchNorm uses its running statistics and z = mu (no VAE noise). The offsets
     along the normals (Eq. (5)) come from a generator seeded with ``seed``, so the value is a
     deterministic function of the weights and comparable between validations. Restores the
-    model's training flag. Returns a dict over :data:`LOSS_TERMS` plus ``n_existing`` (mean number
-    of cuboids with existence probability > 0.5).
+    model's training flag. Returns a dict over :data:`LOSS_TERMS` and :data:`DIAGNOSTICS` (mean
+    number of cuboids with existence probability > 0.5, allocation saturation).
     """
     was_training = model.training
     model.eval()
     device = next(model.parameters()).device
     generator = torch.Generator(device).manual_seed(seed)
-    sums = torch.zeros(len(LOSS_TERMS) + 1, dtype=torch.float64)
+    sums = torch.zeros(len(LOSS_TERMS) + len(DIAGNOSTICS), dtype=torch.float64)
     try:
         for start in range(0, len(shapes), batch_size):
             points = shapes.points[start:start + batch_size].to(device)
             normals = shapes.normals[start:start + batch_size].to(device)
             out = model(points)
             terms = total_loss(out, points, normals, loss_config, generator=generator)
-            n_exist = (out.exist_logits > 0).sum(dim=1).to(points.dtype).mean()
-            values = torch.stack([getattr(terms, k) for k in LOSS_TERMS] + [n_exist])
+            values = torch.stack([getattr(terms, k) for k in LOSS_TERMS] + _diagnostics(out))
             sums += values.double().cpu() * points.shape[0]
     finally:
         model.train(was_training)
     means = (sums / len(shapes)).tolist()
-    return dict(zip(LOSS_TERMS + ("n_existing",), means))
+    return dict(zip(LOSS_TERMS + DIAGNOSTICS, means))
+
+
+def _diagnostics(out) -> list[torch.Tensor]:
+    """The :data:`DIAGNOSTICS` of one batch's network output, as 0-d tensors."""
+    n_exist = (out.exist_logits.detach() > 0).sum(dim=1).to(out.W.dtype).mean()
+    saturated, gap = allocation_saturation(out.affinity.detach())
+    return [n_exist, saturated, gap]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -630,7 +641,7 @@ class Trainer:
 
     # -------------------------------------------------------------------------------- logs
 
-    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + ("n_existing", "seconds")
+    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",)
 
     def _prepare_log(self, resume: bool) -> None:
         """Start log.csv, or on resume drop the rows written after the checkpoint's step."""
@@ -667,11 +678,11 @@ class Trainer:
         out = self.net(points, generator=self.latent_generator)
         bad_outputs = [k for k in _OUTPUTS if not bool(torch.isfinite(getattr(out, k).detach()).all())]
         if bad_outputs:  # the loss would refuse them; all ranks learn of it through the NaN values
-            terms, values = None, torch.full((len(LOSS_TERMS) + 1,), math.nan, device=points.device)
+            terms = None
+            values = torch.full((len(LOSS_TERMS) + len(DIAGNOSTICS),), math.nan, device=points.device)
         else:
             terms = total_loss(out, points, normals, self.loss_config, generator=self.loss_generator)
-            n_exist = (out.exist_logits.detach() > 0).sum(dim=1).to(points.dtype).mean()
-            values = torch.stack([getattr(terms, k).detach() for k in LOSS_TERMS] + [n_exist])
+            values = torch.stack([getattr(terms, k).detach() for k in LOSS_TERMS] + _diagnostics(out))
         flag = torch.tensor([float(over_budget)], dtype=values.dtype, device=values.device)
         if self.dist.enabled:
             import torch.distributed as dist
@@ -679,7 +690,7 @@ class Trainer:
             packed = torch.cat([values / self.dist.world_size, flag])
             dist.all_reduce(packed)
             values, flag = packed[:-1], packed[-1:]
-        numbers = dict(zip(LOSS_TERMS + ("n_existing",), values.tolist()))
+        numbers = dict(zip(LOSS_TERMS + DIAGNOSTICS, values.tolist()))
         if bad_outputs:
             raise TrainingDiverged(self.step + 1, [f"network outputs ({', '.join(bad_outputs)})"],
                                    last_checkpoint=self._last_saved)
@@ -718,7 +729,8 @@ class Trainer:
 
             tqdm.write(
                 f"step {self.step}: validation loss {values['total']:.5f} (reconstruction "
-                f"{values['reconstruction']:.5f}, {values['n_existing']:.1f} cuboids)"
+                f"{values['reconstruction']:.5f}, {values['n_existing']:.1f} cuboids, "
+                f"{100 * values['saturated']:.0f} % of points saturated)"
                 + (" - best so far, saved best.pt" if improved
                    else f"; best {self.best_val:.5f} at step {self.best_step}")
             )
