@@ -17,7 +17,12 @@ each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), whi
   computed on the remaining 80 % of that split, so no scored shape helped choose the labels.
   Segment of a point = argmax over the existing cuboids of the allocation W (network) or its k-means cluster
   (baseline, whose indices carry no correspondence between shapes).
-* **N_AC**: average number of existing cuboids, existence probability > 0.5 (Tables 6-7).
+  The IoU of every part label is kept beside the mean (``part_iou``), so a part that no cuboid
+  carries (IoU 0) is visible.
+* **N_AC**: average number of existing cuboids, existence probability > 0.5 (Tables 5-6).
+* **Box distance** (agreement of segmentation and abstraction, not a metric of the paper): the mean
+  distance of a point to the solid box of the cuboid it is segmented to
+  (:func:`~cuboidlib.metrics.segment_box_distance`), on shapes of diagonal 1.
 
 A shape on which the network predicts no existing cuboid is scored with its single most probable
 cuboid (counted in ``shapes_without_existing_cuboid``); N_AC counts the cuboids actually used.
@@ -39,6 +44,8 @@ from .metrics import (
     mean_iou,
     normal_consistency,
     number_of_existing_cuboids,
+    part_ious,
+    segment_box_distance,
     transfer_part_labels,
 )
 from .model import CuboidAbstractionNet
@@ -49,6 +56,7 @@ __all__ = [
     "predict_cuboids",
     "label_transfer_split",
     "score_cuboids",
+    "segmentation_scores",
     "evaluate_model",
     "evaluate_baseline",
     "format_table",
@@ -145,24 +153,40 @@ def score_cuboids(
                            generator=_shape_generator(seed, i))
         for i in range(n)
     ])
-    miou, transfer = None, None
-    if shapes.labels is not None:
-        labelled, scored = label_transfer_split(n, label_transfer_fraction, seed)
-        seg, gt = pred.segmentation.cpu(), shapes.labels.cpu()
-        num_parts = shapes.num_parts if shapes.num_parts is not None else int(gt.max()) + 1
-        cuboid_labels = transfer_part_labels(seg[labelled], gt[labelled], pred.num_segments, num_parts)
-        miou = mean_iou(cuboid_labels[seg[scored]], gt[scored], num_parts)
-        transfer = {"fraction": label_transfer_fraction, "n_labelled": len(labelled), "n_scored": len(scored),
-                    "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
     return {
         "n_shapes": n,
         "chamfer": chamfer,
         "normal_consistency": float(nc.double().mean()),
         "normal_samples": n_samples,
-        "miou": miou,
-        "label_transfer": transfer,
-        "n_ac": float(number_of_existing_cuboids(pred.exists)),
+        **segmentation_scores(shapes, pred, label_transfer_fraction, seed),
     }
+
+
+def segmentation_scores(shapes: ShapeSet, pred: CuboidPredictions, label_transfer_fraction: float = 0.2,
+                        seed: int = 0) -> dict:
+    """The scores of the segmentation alone (no surface sampling, cheap enough to run during training).
+
+    Returns a dict: ``miou`` (label transfer, None without part labels), ``part_iou`` (part name ->
+    IoU, None for a part absent from the scored shapes), ``label_transfer`` (who was labelled, the
+    part of every cuboid index), ``box_distance`` (mean over shapes of
+    :func:`~cuboidlib.metrics.segment_box_distance`) and ``n_ac``.
+    """
+    seg = pred.segmentation.cpu()
+    box = segment_box_distance(shapes.points.cpu(), seg, pred.centers, pred.quaternions, pred.half_sizes)
+    miou, transfer, per_part = None, None, None
+    if shapes.labels is not None:
+        labelled, scored = label_transfer_split(len(shapes), label_transfer_fraction, seed)
+        gt = shapes.labels.cpu()
+        num_parts = shapes.num_parts if shapes.num_parts is not None else int(gt.max()) + 1
+        cuboid_labels = transfer_part_labels(seg[labelled], gt[labelled], pred.num_segments, num_parts)
+        miou = mean_iou(cuboid_labels[seg[scored]], gt[scored], num_parts)
+        ious = part_ious(cuboid_labels[seg[scored]], gt[scored], num_parts)
+        names = shapes.part_names or tuple(f"part {i}" for i in range(num_parts))
+        per_part = {names[i]: (None if ious[i].isnan() else float(ious[i])) for i in range(num_parts)}
+        transfer = {"fraction": label_transfer_fraction, "n_labelled": len(labelled), "n_scored": len(scored),
+                    "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
+    return {"miou": miou, "part_iou": per_part, "label_transfer": transfer, "box_distance": float(box.double().mean()),
+            "n_ac": float(number_of_existing_cuboids(pred.exists))}
 
 
 def evaluate_model(
@@ -231,7 +255,8 @@ def format_table(results: Sequence[dict], title: str | None = None) -> str:
         for c in r["chamfer"]:
             if c["convention"] not in conventions:
                 conventions.append(c["convention"])
-    header = ["method", "shapes"] + [f"CD [{i + 1}]" for i in range(len(conventions))] + ["NC", "mIoU", "N_AC"]
+    header = (["method", "shapes"] + [f"CD [{i + 1}]" for i in range(len(conventions))]
+              + ["NC", "mIoU", "N_AC", "box dist"])
     rows = []
     for r in results:
         cd = {c["convention"]: c["value"] for c in r["chamfer"]}
@@ -239,7 +264,7 @@ def format_table(results: Sequence[dict], title: str | None = None) -> str:
             [r["method"], str(r["n_shapes"])]
             + [f"{cd[c]:.5f}" if c in cd else "-" for c in conventions]
             + [f"{r['normal_consistency']:.4f}", "-" if r["miou"] is None else f"{100 * r['miou']:.1f}",
-               f"{r['n_ac']:.2f}"]
+               f"{r['n_ac']:.2f}", "-" if r.get("box_distance") is None else f"{r['box_distance']:.4f}"]
         )
     widths = [max(len(row[i]) for row in [header] + rows) for i in range(len(header))]
 
@@ -257,9 +282,15 @@ def format_table(results: Sequence[dict], title: str | None = None) -> str:
             f"({100 * transfer['fraction']:.0f} % of the split, seed {transfer['seed']}) to the other "
             f"{transfer['n_scored']}; per-label IoU over all their points, averaged over the labels (Sec. 4.2)."
         )
+        for r in results:
+            if r.get("part_iou"):
+                parts = ", ".join(f"{k} {'-' if v is None else f'{100 * v:.1f}'}" for k, v in r["part_iou"].items())
+                lines.append(f"  IoU per part (%), {r['method']}: {parts}")
     else:
         lines.append("mIoU: not computed (the shapes have no part labels).")
     lines.append("N_AC: average number of existing cuboids (existence probability > 0.5; k-means: boxes fitted).")
+    lines.append("box dist: mean distance of a point to the solid box of the cuboid it is segmented to (shape "
+                 "diagonal 1; 0 = every segment inside its box), the agreement of segmentation and abstraction.")
     for r in results:
         if r.get("shapes_without_existing_cuboid"):
             lines.append(f"{r['method']}: {r['shapes_without_existing_cuboid']} of {r['n_shapes']} shapes have no "

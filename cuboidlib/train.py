@@ -72,6 +72,7 @@ __all__ = [
     "Trainer",
     "LOSS_TERMS",
     "DIAGNOSTICS",
+    "VALIDATION_SCORES",
 ]
 
 #: The loss terms logged at every step (Eq. (9) and its four terms), in log-file order.
@@ -80,6 +81,9 @@ LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl")
 #: fraction of points whose allocation is saturated (largest weight above 0.999) and the median gap
 #: between the best and second-best affinity logit (see :func:`cuboidlib.model.allocation_saturation`).
 DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
+#: Scores of the validation split logged at every validation when its shapes carry part labels: the
+#: mIoU by the paper's label transfer, N_AC and the box distance (:func:`cuboidlib.evaluation.segmentation_scores`).
+VALIDATION_SCORES = ("miou", "n_ac", "box_distance")
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -641,7 +645,7 @@ class Trainer:
 
     # -------------------------------------------------------------------------------- logs
 
-    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",)
+    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",) + VALIDATION_SCORES
 
     def _prepare_log(self, resume: bool) -> None:
         """Start log.csv, or on resume drop the rows written after the checkpoint's step."""
@@ -709,13 +713,25 @@ class Trainer:
         self._check_weights(self.step + 1, {k: numbers[k] for k in LOSS_TERMS})
         return numbers, bool(flag.item() > 0)
 
+    def _validation_scores(self) -> dict[str, float]:
+        """mIoU (label transfer within the validation split), N_AC and box distance of the network now."""
+        if self.val_set.labels is None or len(self.val_set) < 2:
+            return {}
+        from .evaluation import predict_cuboids, segmentation_scores  # evaluation imports this module
+
+        pred, _ = predict_cuboids(self.model, self.val_set, self.config.batch_size,
+                                  self.loss_config.centers_from_allocation)
+        scores = segmentation_scores(self.val_set, pred)
+        return {k: scores[k] for k in VALIDATION_SCORES}
+
     def _validate(self, seconds: float) -> None:
         """Validation loss on the validation split (rank 0); keep ``best.pt`` at its minimum."""
         if not self.dist.is_main:
             return
         values = validation_loss(self.model, self.val_set, self.loss_config, self.config.batch_size,
                                  _derive_seed(self.config.seed, _VALIDATION))
-        self._log("val", values, seconds)
+        scores = self._validation_scores()
+        self._log("val", {**values, **scores}, seconds)
         if not math.isfinite(values["total"]):
             raise TrainingDiverged(self.step, ["validation loss"], values, self._last_saved)
         improved = self.best_val is None or values["total"] < self.best_val
@@ -730,7 +746,8 @@ class Trainer:
             tqdm.write(
                 f"step {self.step}: validation loss {values['total']:.5f} (reconstruction "
                 f"{values['reconstruction']:.5f}, {values['n_existing']:.1f} cuboids, "
-                f"{100 * values['saturated']:.0f} % of points saturated)"
+                f"{100 * values['saturated']:.0f} % of points saturated"
+                + (f", mIoU {100 * scores['miou']:.1f} %)" if scores.get("miou") is not None else ")")
                 + (" - best so far, saved best.pt" if improved
                    else f"; best {self.best_val:.5f} at step {self.best_step}")
             )

@@ -9,8 +9,11 @@ from cuboidlib.metrics import (
     mean_iou,
     normal_consistency,
     number_of_existing_cuboids,
+    part_ious,
+    segment_box_distance,
     transfer_part_labels,
 )
+from cuboidlib.geometry import quaternion_multiply, quaternion_to_rotation_matrix, random_quaternions
 
 ID = torch.tensor([[[1.0, 0.0, 0.0, 0.0]]])
 
@@ -168,3 +171,60 @@ def test_mean_iou_counts_unlabelled_predictions_as_wrong_and_absent_labels_per_s
     assert mean_iou(torch.tensor([[0, 0, -1, -1]]), gt, num_parts=2) == pytest.approx(0.5)
     assert mean_iou(torch.tensor([[0, 0, 0, 0]]), gt, num_parts=2, per_shape=True) == 1.0
     assert math.isclose(mean_iou(torch.tensor([[1, 1, 1, 1]]), gt, num_parts=2), 0.0)
+
+
+# ---------------------------------------------------------------- per-part IoU
+
+
+def test_part_ious_by_hand_and_mean_iou_is_their_mean():
+    pred = torch.tensor([[0, 0, 1, 1, -1]])
+    gt = torch.tensor([[0, 1, 1, 1, 2]])
+    # label 0: inter 1, union 2; label 1: inter 2, union 3; label 2: inter 0, union 1; label 3 absent
+    iou = part_ious(pred, gt, 4)
+    torch.testing.assert_close(iou[:3], torch.tensor([0.5, 2 / 3, 0.0], dtype=torch.float64))
+    assert math.isnan(iou[3])
+    assert mean_iou(pred, gt, 4) == pytest.approx((0.5 + 2 / 3 + 0.0) / 3)
+
+
+# ---------------------------------------------------------------- agreement of segmentation and boxes
+
+
+def test_segment_box_distance_by_hand():
+    # Box 0: half sizes 1 at the origin; box 1: half sizes (0.5, 0.5, 0.5) at (5, 0, 0).
+    centers = torch.tensor([[[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]])
+    quats = torch.tensor([[[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]])
+    half = torch.tensor([[[1.0, 1.0, 1.0], [0.5, 0.5, 0.5]]])
+    points = torch.tensor([[[0.5, 0.0, 0.0], [3.0, 0.0, 0.0], [5.0, 2.5, 0.0], [5.0, 0.0, 0.0]]])
+    seg = torch.tensor([[0, 0, 1, 0]])
+    # inside -> 0; (3,0,0) 2 outside box 0; (5,2.5,0) 2 above box 1; (5,0,0) sqrt(4^2) = 4 outside box 0
+    d = segment_box_distance(points, seg, centers, quats, half)
+    torch.testing.assert_close(d, torch.tensor([(0 + 2 + 2 + 4) / 4]))
+    # a corner point: distance to the corner, not to a face
+    corner = segment_box_distance(torch.tensor([[[2.0, 2.0, 2.0]]]), torch.tensor([[0]]), centers, quats, half)
+    torch.testing.assert_close(corner, torch.tensor([math.sqrt(3.0)]))
+
+
+def test_segment_box_distance_is_invariant_to_a_rigid_motion():
+    g = torch.Generator().manual_seed(3)
+    points = torch.randn(2, 50, 3, generator=g)
+    centers = torch.randn(2, 4, 3, generator=g)
+    quats = random_quaternions(2, 4, generator=g)
+    half = torch.rand(2, 4, 3, generator=g) + 0.1
+    seg = torch.randint(0, 4, (2, 50), generator=g)
+    q = random_quaternions(1, 1, generator=g)
+    R = quaternion_to_rotation_matrix(q)[0, 0]
+    t = torch.tensor([0.3, -2.0, 1.0])
+    moved = segment_box_distance(points @ R.T + t, seg, centers @ R.T + t, quaternion_multiply(q.expand(2, 4, 4), quats),
+                                 half)
+    torch.testing.assert_close(moved, segment_box_distance(points, seg, centers, quats, half), atol=1e-5, rtol=1e-5)
+
+
+def test_segment_box_distance_rejects_bad_segmentations():
+    centers, quats, half = unit_cube()
+    points = torch.zeros(1, 3, 3)
+    with pytest.raises(ValueError, match="segmentation indices must lie in"):
+        segment_box_distance(points, torch.tensor([[0, 1, 0]]), centers, quats, half)
+    with pytest.raises(ValueError, match="segmentation must be integer indices of shape"):
+        segment_box_distance(points, torch.zeros(1, 3), centers, quats, half)
+    with pytest.raises(ValueError, match="segmentation must be integer indices of shape"):
+        segment_box_distance(points, torch.tensor([[0, 0]]), centers, quats, half)
