@@ -8,7 +8,9 @@ writes a JSON card beside it (``chair.json``) holding
 
 * ``command``: the command that trained and published it, ``git_commit`` of the source tree;
 * ``machine``: CPU count, torch threads, torch version, device;
-* ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run;
+* ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run, and the
+  validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
+  saturation at every validation), with its values at 15, 30 and 60 minutes;
 * ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
 * ``test``: the metrics of the network and of the baseline (:func:`cuboidlib.evaluation.evaluate_model`)
   and the printed table with its Chamfer convention.
@@ -32,7 +34,7 @@ from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .train import TrainConfig, load_splits
 
-__all__ = ["CARD_FORMAT", "card_path", "git_commit", "publish_run", "read_card", "cards_markdown"]
+__all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "git_commit", "publish_run", "read_card", "cards_markdown"]
 
 CARD_FORMAT = "cuboidlib-checkpoint-card"
 
@@ -55,17 +57,39 @@ def git_commit(folder: str | os.PathLike | None = None) -> str | None:
     return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
 
 
+#: Wall-clock marks (minutes) at which a card reports the validation scores of its run.
+CURVE_MARKS = (15, 30, 60)
+
+
 def _training_summary(run_dir: Path, selected_step: int | None) -> dict:
-    """Steps and wall-clock seconds of a run, from its ``log.csv`` (the last training row)."""
-    last = None
+    """Steps and wall-clock seconds of a run and its validation curve, from its ``log.csv``.
+
+    ``validation``: one entry per validation row (step, seconds, loss, N_AC, mIoU, box distance,
+    saturation; the scores that the log holds); ``at_minutes``: the last validation at or before each
+    of :data:`CURVE_MARKS` that the run reached, so a card tells what a shorter budget gives.
+    """
+    last, curve = None, []
     with open(run_dir / "log.csv", newline="") as f:
         for row in csv.DictReader(f):
             if row["split"] == "train":
                 last = row
+            elif row["split"] == "val":
+                entry = {"step": int(row["step"]), "seconds": round(float(row["seconds"]), 1),
+                         "loss": float(row["total"])}
+                for key in ("n_ac", "miou", "box_distance", "saturated"):
+                    if row.get(key):
+                        entry[key] = float(row[key])
+                curve.append(entry)
     if last is None:
         raise ValueError(f"{run_dir / 'log.csv'}: no training step logged")
-    return {"steps": int(last["step"]), "selected_step": selected_step,
-            "selection": "lowest validation loss", "seconds": round(float(last["seconds"]), 1)}
+    seconds = round(float(last["seconds"]), 1)
+    marks = {}
+    for minutes in CURVE_MARKS:
+        before = [e for e in curve if e["seconds"] <= 60 * minutes]
+        if before and seconds >= 60 * minutes - 60:  # the run lasted (about) this long
+            marks[str(minutes)] = before[-1]
+    return {"steps": int(last["step"]), "selected_step": selected_step, "selection": "lowest validation loss",
+            "seconds": seconds, "validation": curve, "at_minutes": marks}
 
 
 def publish_run(

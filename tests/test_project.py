@@ -146,7 +146,10 @@ def test_committed_checkpoint_comes_with_its_card_and_config(category):
                f"--release data_samples/checkpoints/{category}.pt"
     assert card["command"] == expected
     assert TrainConfig.load_json(CHECKPOINTS / "configs" / f"{category}.json") == config, "trained by its config file"
-    assert card["training"]["seconds"] <= 30 * 60, "each checkpoint trains in at most 30 minutes"
+    assert card["training"]["seconds"] <= 60 * 60, "each checkpoint trains in at most 60 minutes"
+    assert card["test"]["n_shapes"] >= 200, "scored on a test split of at least 200 shapes"
+    curve = card["training"]["validation"]
+    assert curve and all("miou" in e and "n_ac" in e for e in curve), "the card holds the validation curve"
     assert card["test"]["split"] == "test"
 
 

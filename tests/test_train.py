@@ -445,11 +445,17 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     logged = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "train"]
     assert card["training"]["seconds"] == round(float(logged[-1]["seconds"]), 1) >= 0  # a tiny run may round to 0.0
     assert card["test"]["n_shapes"] == len(splits["test"])
+    validated = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "val"]
+    curve = card["training"]["validation"]
+    assert [e["step"] for e in curve] == [int(r["step"]) for r in validated] and curve
+    assert all(0 <= e["miou"] <= 1 and e["n_ac"] >= 0 and e["box_distance"] >= 0 for e in curve)
+    assert card["training"]["at_minutes"] == {}, "a run of seconds reaches none of the 15 / 30 / 60 minute marks"
     network, baseline = card["test"]["results"]
     assert network["method"].startswith("network") and baseline["method"].startswith("k-means boxes")
     assert baseline["num_cuboids"] == max(1, round(network["n_ac"]))
     for row in (network, baseline):
         assert row["chamfer"][0]["value"] > 0 and 0 <= row["miou"] <= 1
+        assert row["box_distance"] >= 0 and set(row["part_iou"]) == set(splits["test"].part_names)
     assert "squared L2" in card["test"]["table"]
 
 
