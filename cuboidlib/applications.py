@@ -23,9 +23,10 @@ probable one (:func:`existence_mask`), so every decoded shape has at least one c
 
 Decoded cuboids are in the normalised coordinates the network was trained in (bounding box
 centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`). Generation and interpolation
-use the predicted translations; a network trained with the authors' centroid centres
-(``LossConfig(centers_from_allocation=True)``) never trained its translation head, so its
-generated shapes are not meaningful (abstraction of a point cloud can use the centroids instead).
+use the predicted translations. A network trained with the authors' centroid centres
+(``LossConfig(centers_from_allocation=True)``, the committed ones) never trains its translation head
+by gradient; ``cuboidlib train --release`` fits it to the centroids afterwards
+(:func:`cuboidlib.release.fit_translation_head`), and abstraction of a point cloud uses the centroids.
 
 **Trained checkpoints by name.** :func:`resolve_checkpoint` accepts a checkpoint file, a training
 run folder (its ``best.pt``) or the name of a committed checkpoint: ``chair`` means

@@ -12,6 +12,8 @@ writes a JSON card beside it (``chair.json``) holding
   validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
   saturation at every validation), with its values at 15, 30 and 60 minutes;
 * ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
+* ``translation_head`` (networks trained with centroid centres only, see :func:`fit_translation_head`):
+  how well the refitted translation head predicts the centroids on the validation split;
 * ``test``: the metrics of the network and of the baseline (:func:`cuboidlib.evaluation.evaluate_model`)
   and the printed table with its Chamfer convention.
 
@@ -32,9 +34,11 @@ import torch
 
 from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .evaluation import evaluate_baseline, evaluate_model, format_table
+from .losses import allocation_weighted_centers
+from .model import CuboidAbstractionNet
 from .train import TrainConfig, load_splits
 
-__all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "git_commit", "publish_run", "read_card", "cards_markdown"]
+__all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit", "publish_run", "read_card", "cards_markdown"]
 
 CARD_FORMAT = "cuboidlib-checkpoint-card"
 
@@ -92,6 +96,59 @@ def _training_summary(run_dir: Path, selected_step: int | None) -> dict:
             "seconds": seconds, "validation": curve, "at_minutes": marks}
 
 
+@torch.no_grad()
+def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, batch_size: int = 32):
+    """Cuboid features f^c (K, C) and allocation centroids c_m (K, 3) of the existing cuboids of ``points``."""
+    was_training = model.training
+    model.eval()
+    try:
+        features, centroids = [], []
+        for chunk in points.split(batch_size):
+            out = model(chunk, sample_latent=False)
+            exists = out.exist_probs > 0.5
+            features.append(out.cuboid_features[exists])
+            centroids.append(allocation_weighted_centers(out.W, chunk)[exists])
+    finally:
+        model.train(was_training)
+    return torch.cat(features), torch.cat(centroids)
+
+
+def translation_head_error(model: CuboidAbstractionNet, points: torch.Tensor) -> float:
+    """RMS distance between the predicted translations t_m and the allocation centroids c_m, over the
+    existing cuboids of ``points`` (S, N, 3) (network in evaluation mode, z = mu)."""
+    features, centroids = _features_and_centroids(model, points)
+    if len(features) == 0:
+        raise ValueError("no cuboid exists on these shapes; the translation head cannot be compared")
+    with torch.no_grad():
+        predicted = torch.tanh(model.abstraction.D_cp.translation(features))
+    return float((predicted - centroids).square().sum(dim=-1).mean().sqrt())
+
+
+def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridge: float = 1e-5) -> None:
+    """Fit the translation head of D_cp so that t_m predicts the allocation centroid c_m (in place).
+
+    A network trained with the authors' centroid centres (``LossConfig(centers_from_allocation=True)``)
+    places every cuboid at c_m = sum_n W_mn p_n / (sum_n W_mn + 1) in its losses, so its translation head
+    t_m = tanh(A f^c_m + b) never receives a gradient. Abstracting a point cloud can use the centroids, but
+    decoding a latent code alone (generation, interpolation, Sec. 4.4) has no points and needs t_m. With
+    every other weight fixed, the head is linear before the tanh, so it is fitted in closed form: ridge
+    least squares of atanh(c_m) on [f^c_m, 1] over the existing cuboids (existence > 0.5) of ``points``
+    (S, N, 3), the training shapes. The authors' code has a loss term for this with weight 0.
+    """
+    features, centroids = _features_and_centroids(model, points)
+    if len(features) == 0:
+        raise ValueError("no cuboid exists on these shapes; the translation head cannot be fitted")
+    x = torch.cat([features, torch.ones(len(features), 1, dtype=features.dtype, device=features.device)], dim=1)
+    y = torch.atanh(centroids.clamp(-0.999, 0.999))
+    x, y = x.double(), y.double()
+    gram = x.T @ x + ridge * len(x) * torch.eye(x.shape[1], dtype=x.dtype, device=x.device)
+    solution = torch.linalg.solve(gram, x.T @ y)  # (C + 1, 3)
+    head = model.abstraction.D_cp.translation
+    with torch.no_grad():
+        head.weight.copy_(solution[:-1].T.to(head.weight))
+        head.bias.copy_(solution[-1].to(head.bias))
+
+
 def publish_run(
     run_dir: str | os.PathLike,
     dest: str | os.PathLike,
@@ -108,10 +165,23 @@ def publish_run(
         raise ValueError(f"{dest}: a released checkpoint must be a .pt file")
     state = load_checkpoint(run_dir / "best.pt")
     training = _training_summary(run_dir, state.get("step"))
-    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
     config = TrainConfig.from_dict(state["config"])
+    splits = load_splits(config)
+    translation = None
+    if config.loss_config.centers_from_allocation:
+        model = CuboidAbstractionNet(config.model_config)
+        model.load_state_dict(state["model"])
+        val = splits["val"].points
+        before = translation_head_error(model, val)
+        fit_translation_head(model, splits["train"].points)
+        translation = {"fitted_on": f"train split ({len(splits['train'])} shapes), existing cuboids",
+                       "method": "ridge least squares of atanh(centroid) on the cuboid features (fit_translation_head)",
+                       "rms_error_validation_before": round(before, 5),
+                       "rms_error_validation_after": round(translation_head_error(model, val), 5)}
+        state["model"] = model.state_dict()
+    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
     model, _ = load_model(dest)
-    shapes = load_splits(config)["test"]
+    shapes = splits["test"]
     start = time.perf_counter()
     centroids = config.loss_config.centers_from_allocation
     network = evaluate_model(model, shapes, seed=seed, centers_from_allocation=centroids,
@@ -130,6 +200,7 @@ def publish_run(
                     "device": config.device},
         "training": training,
         "config": config.to_dict(),
+        **({"translation_head": translation} if translation else {}),
         "test": {"split": "test", "n_shapes": len(shapes), "evaluation_seconds": round(time.perf_counter() - start, 1),
                  "results": [network, baseline], "table": format_table([network, baseline], title)},
     }

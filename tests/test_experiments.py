@@ -60,7 +60,8 @@ def _keys(runs, *fields) -> set[tuple]:
 def test_course_scale_is_the_configuration_of_the_committed_checkpoints():
     for category, m in (("airplane", 20), ("chair", 16), ("table", 14), ("animal", 16)):
         c = runner.course_config(category, steps=300)
-        assert (c.n_shapes, c.n_points, c.batch_size, c.lr, c.max_steps, c.num_threads) == (256, 1024, 16, 2e-3, 300, 1)
+        assert (c.n_shapes, c.n_points, c.batch_size, c.lr, c.max_steps, c.num_threads) == (1000, 1024, 16, 2e-3, 300, 1)
+        assert c.model_config.attention_scale and c.loss_config.centers_from_allocation
         assert c.max_minutes is None and c.checkpoint_every == 300 and c.validate_every == 100
         assert c.model_config.num_cuboids == m and c.model_config.global_dim == 256  # ModelConfig.small
         assert c.loss_config.compactness_average and c.loss_config.lambda_compact == 0.02

@@ -21,6 +21,7 @@ from cuboidlib.model import (
     EdgeConv,
     GlobalFeature,
     ModelConfig,
+    allocation_saturation,
     knn_indices,
 )
 
@@ -149,6 +150,43 @@ def test_segmentation_is_softmax_of_dot_products_eq_2_3():
     scaled.load_state_dict(seg.state_dict())
     A_scaled, _ = scaled(fp, fc)
     torch.testing.assert_close(A_scaled, A / 2.0)  # 1 / sqrt(seg_dim = 4)
+
+
+def test_cosine_affinity_is_bounded_cosine_similarity():
+    torch.manual_seed(0)
+    seg = CuboidSegmentation(point_dim=6, cuboid_dim=5, seg_dim=4, cosine_affinity=10.0)
+    fp, fc = 1000 * torch.randn(2, 7, 6), torch.randn(2, 3, 5)  # large features: the dot product would saturate
+    A, W = seg(fp, fc)
+    gp = fp @ seg.point_proj.weight.T
+    gc = fc @ seg.cuboid_proj.weight.T
+    expected = 10.0 * torch.nn.functional.cosine_similarity(gp[:, :, None, :], gc[:, None, :, :], dim=-1)
+    torch.testing.assert_close(A, expected)
+    assert A.abs().max() <= 10.0 + 1e-5
+    torch.testing.assert_close(W, torch.softmax(expected, dim=-1))
+
+
+def test_cosine_affinity_gradients_float64():
+    torch.manual_seed(1)
+    seg = CuboidSegmentation(point_dim=4, cuboid_dim=3, seg_dim=3, cosine_affinity=5.0).double()
+    fp = torch.randn(1, 5, 4, dtype=torch.float64, requires_grad=True)
+    fc = torch.randn(1, 2, 3, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: seg(a, b)[1], (fp, fc))
+
+
+def test_allocation_saturation_by_hand():
+    # point 0: gap 40 (saturated); point 1: gap 0 (two equal best); point 2: gap 2 (weight ~0.79, not saturated)
+    affinity = torch.tensor([[[40.0, 0.0, 0.0], [1.0, 1.0, -5.0], [2.0, 0.0, -30.0]]])
+    saturated, gap = allocation_saturation(affinity)
+    assert saturated.item() == pytest.approx(1 / 3)
+    assert gap.item() == pytest.approx(2.0)  # median of 40, 0, 2
+    one, zero = allocation_saturation(torch.zeros(1, 4, 1))
+    assert one.item() == 1.0 and zero.item() == 0.0  # one cuboid: every point is fully allocated
+
+
+def test_old_configs_without_cosine_affinity_still_load():
+    data = ModelConfig.small().to_dict()
+    del data["cosine_affinity"]
+    assert ModelConfig.from_dict(data).cosine_affinity is None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -405,6 +443,9 @@ def test_small_config_is_smaller_and_runs():
         (dict(edge_dims=()), "edge_dims must be a non-empty sequence"),
         (dict(cuboid_feature_dims=(16, -1)), "cuboid_feature_dims must be a non-empty sequence"),
         (dict(attention_scale="yes"), "attention_scale must be True or False"),
+        (dict(cosine_affinity=0.0), r"cosine_affinity must be None or a number in \(0, 1000\]"),
+        (dict(cosine_affinity=True), r"cosine_affinity must be None or a number"),
+        (dict(cosine_affinity=5.0, attention_scale=True), "cosine_affinity and attention_scale exclude each other"),
         (dict(negative_slope=1.5), r"negative_slope must be a number in \[0, 1\)"),
     ],
 )

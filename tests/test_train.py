@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import cuboidlib.train as train_module
-from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint
+from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, load_model
 from cuboidlib.cli import main
 from cuboidlib.losses import LossConfig
 from cuboidlib.model import ModelConfig
@@ -457,6 +457,25 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
         assert row["chamfer"][0]["value"] > 0 and 0 <= row["miou"] <= 1
         assert row["box_distance"] >= 0 and set(row["part_iou"]) == set(splits["test"].part_names)
     assert "squared L2" in card["test"]["table"]
+
+
+def test_release_of_a_centroid_network_fits_its_translation_head(tmp_path, tiny):
+    from cuboidlib.release import read_card, translation_head_error
+
+    config, splits = tiny
+    config = config.replace(loss=LossConfig.authors_code().to_dict(), max_steps=6)
+    cfg = config.save_json(tmp_path / "c.json")
+    dest = tmp_path / "chair.pt"
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--release", str(dest)]) == 0
+    card = read_card(dest)
+    fit = card["translation_head"]
+    assert fit["rms_error_validation_after"] < fit["rms_error_validation_before"]
+    released, _ = load_model(dest)
+    error = translation_head_error(released, splits["val"].points)
+    assert error == pytest.approx(fit["rms_error_validation_after"], abs=1e-5), "the released head is the fitted one"
+    best = load_checkpoint(tmp_path / "run" / "best.pt")["model"]
+    changed = [k for k, v in released.state_dict().items() if not torch.equal(v, best[k])]
+    assert sorted(changed) == ["abstraction.D_cp.translation.bias", "abstraction.D_cp.translation.weight"]
 
 
 def test_cli_release_refuses_a_bad_file_name_before_training(tmp_path, tiny, capsys):
