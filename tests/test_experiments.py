@@ -393,3 +393,25 @@ def test_every_script_has_help_naming_its_table():
         text = module.EXPERIMENT.parser().format_help()
         assert "--quick" in text and "--jobs" in text and f"experiments/results/{module.EXPERIMENT.name}.json" in text
         assert module.__doc__.splitlines()[0] in text
+
+
+# ----------------------------------------------------------------------------------------------
+# The training curves of the committed networks
+# ----------------------------------------------------------------------------------------------
+
+
+def test_training_curves_are_drawn_from_the_cards(tmp_path, capsys):
+    import training_curves
+
+    from cuboidlib.release import read_card
+
+    out = tmp_path / "curves.png"
+    assert training_curves.main(["--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    printed = capsys.readouterr().out.splitlines()
+    for category in training_curves.CATEGORIES:
+        (line,) = [row for row in printed if row.startswith(category)]
+        marks = read_card(ROOT / "data_samples" / "checkpoints" / f"{category}.pt")["training"]["at_minutes"]
+        assert marks, f"{category}: the card reaches no 15-minute mark"
+        for minutes, entry in marks.items():
+            assert f"{minutes} min: mIoU {100 * entry['miou']:.1f} %" in line
