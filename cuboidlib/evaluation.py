@@ -169,10 +169,13 @@ def segmentation_scores(shapes: ShapeSet, pred: CuboidPredictions, label_transfe
     Returns a dict: ``miou`` (label transfer, None without part labels), ``part_iou`` (part name ->
     IoU, None for a part absent from the scored shapes), ``label_transfer`` (who was labelled, the
     part of every cuboid index), ``box_distance`` (mean over shapes of
-    :func:`~cuboidlib.metrics.segment_box_distance`) and ``n_ac``.
+    :func:`~cuboidlib.metrics.segment_box_distance`; None when the segmentation is of other points than
+    ``shapes``, as when cuboids are scored against a denser sampling) and ``n_ac``.
     """
     seg = pred.segmentation.cpu()
-    box = segment_box_distance(shapes.points.cpu(), seg, pred.centers, pred.quaternions, pred.half_sizes)
+    box = None
+    if seg.shape == shapes.points.shape[:2]:  # scored on the points that were segmented (not another density)
+        box = segment_box_distance(shapes.points.cpu(), seg, pred.centers, pred.quaternions, pred.half_sizes)
     miou, transfer, per_part = None, None, None
     if shapes.labels is not None:
         labelled, scored = label_transfer_split(len(shapes), label_transfer_fraction, seed)
@@ -185,7 +188,8 @@ def segmentation_scores(shapes: ShapeSet, pred: CuboidPredictions, label_transfe
         per_part = {names[i]: (None if ious[i].isnan() else float(ious[i])) for i in range(num_parts)}
         transfer = {"fraction": label_transfer_fraction, "n_labelled": len(labelled), "n_scored": len(scored),
                     "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
-    return {"miou": miou, "part_iou": per_part, "label_transfer": transfer, "box_distance": float(box.double().mean()),
+    return {"miou": miou, "part_iou": per_part, "label_transfer": transfer,
+            "box_distance": None if box is None else float(box.double().mean()),
             "n_ac": float(number_of_existing_cuboids(pred.exists))}
 
 

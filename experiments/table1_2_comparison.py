@@ -53,6 +53,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoints", metavar="DIR",
                    help="score the released checkpoints DIR/<category>.pt (e.g. data_samples/checkpoints) instead "
                         "of training; their data settings are used")
+    p.add_argument("--without-fitting", action="store_true",
+                   help="leave out per-shape fitting (the slowest method: a few seconds for every test shape)")
 
 
 def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run]:
@@ -74,6 +76,8 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
             else:
                 config = scale.config(category, seed)
                 runs.append(runner.Run(f"{category}_network_seed{seed}", key, config, options={"baseline": True}))
+            if args.without_fitting:
+                continue
             fit = scale.fit_config(config.model_config.num_cuboids, seed)
             runs.append(runner.Run(f"{category}_fitting_seed{seed}", key, config, task="fit",
                                    options={"fit": dataclasses.asdict(fit), "method": "per-shape fitting"}))

@@ -263,6 +263,8 @@ def test_tables_1_2_compare_three_methods_on_four_categories():
     fits = [r for r in runs if r.task == "fit"]
     assert len(train) == len(fits) == 4 and all(r.options["baseline"] for r in train)
     assert {r.config.category: r.options["fit"]["num_cuboids"] for r in fits} == runner.COURSE_NUM_CUBOIDS
+    _, without = _runs(table12, "--without-fitting")
+    assert [r.task for r in without] == ["train"] * 4, "--without-fitting leaves out the per-shape fits"
 
 
 def test_every_full_run_is_estimated_to_finish_within_45_minutes():
