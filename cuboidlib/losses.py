@@ -354,4 +354,8 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
     kl = kl_divergence(output.mu, output.logvar)
     recons, compact, exist, kl = recons.mean(), compact.mean(), exist.mean(), kl.mean()
     total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
+    if c.centers_from_allocation:
+        # No term uses the predicted translation; keep it in the graph with weight 0 so that every parameter
+        # gets a (zero) gradient, as DistributedDataParallel requires. The value of the loss is unchanged.
+        total = total + 0.0 * output.centers.sum()
     return LossTerms(total, recons, compact, exist, kl, W, w)

@@ -393,11 +393,14 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny):
+@pytest.mark.parametrize("centroids", [False, True], ids=["predicted centres", "centroid centres"])
+def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, centroids):
     # Two processes started with the variables torchrun sets (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR/PORT);
-    # `torchrun --nproc_per_node=2 -m cuboidlib.train ...` does the same through the command line.
+    # `torchrun --nproc_per_node=2 -m cuboidlib.train ...` does the same through the command line. With centroid
+    # centres (the committed recipe) the translation head receives no gradient, which DDP must be told.
     config, _ = tiny
-    cfg = config.replace(max_steps=4, checkpoint_every=2).save_json(tmp_path / "c.json")
+    loss = LossConfig(centers_from_allocation=centroids).to_dict()
+    cfg = config.replace(max_steps=4, checkpoint_every=2, loss=loss).save_json(tmp_path / "c.json")
     (tmp_path / "ddp.py").write_text(DDP_SCRIPT)
     out = tmp_path / "run"
     out.mkdir()
