@@ -211,6 +211,20 @@ def transfer_part_labels(segmentation, part_labels, num_cuboids: int, num_parts:
     return labels
 
 
+def _intersections_and_unions(predicted_parts, part_labels, num_parts: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per shape and label, |pred = l and gt = l| and |pred = l or gt = l|: two (S, num_parts) float64 tensors."""
+    pred = _check_labels(predicted_parts, "predicted_parts")
+    gt = _check_labels(part_labels, "part_labels")
+    if pred.shape != gt.shape:
+        raise ValueError(f"predicted_parts {tuple(pred.shape)} and part_labels {tuple(gt.shape)} must have the same shape")
+    if pred.numel() == 0:
+        raise ValueError("an IoU needs at least one point")
+    labels = torch.arange(num_parts)
+    p = pred[..., None] == labels  # (S, N, L)
+    g = gt[..., None] == labels
+    return (p & g).sum(dim=1).double(), (p | g).sum(dim=1).double()
+
+
 def part_ious(predicted_parts, part_labels, num_parts: int) -> torch.Tensor:
     """Per-label intersection over union of a part segmentation, counted over all points (Sec. 4.2).
 
@@ -219,17 +233,7 @@ def part_ious(predicted_parts, part_labels, num_parts: int) -> torch.Tensor:
     points of all shapes; NaN for a label that occurs in neither. Example: a cuboid-to-part map that
     gives no cuboid the label "arm" leaves IoU 0 for "arm" wherever arms exist.
     """
-    pred = _check_labels(predicted_parts, "predicted_parts")
-    gt = _check_labels(part_labels, "part_labels")
-    if pred.shape != gt.shape:
-        raise ValueError(f"predicted_parts {tuple(pred.shape)} and part_labels {tuple(gt.shape)} must have the same shape")
-    if pred.numel() == 0:
-        raise ValueError("part IoU needs at least one point")
-    labels = torch.arange(num_parts)
-    p = pred[..., None] == labels  # (S, N, L)
-    g = gt[..., None] == labels
-    inter = (p & g).sum(dim=(0, 1)).double()
-    union = (p | g).sum(dim=(0, 1)).double()
+    inter, union = (x.sum(dim=0) for x in _intersections_and_unions(predicted_parts, part_labels, num_parts))
     return torch.where(union > 0, inter / union.clamp_min(1), torch.full_like(union, math.nan))
 
 
@@ -245,19 +249,8 @@ def mean_iou(predicted_parts, part_labels, num_parts: int, per_shape: bool = Fal
     if not per_shape:
         iou = part_ious(predicted_parts, part_labels, num_parts)
         return float(iou[~iou.isnan()].mean())
-    pred = _check_labels(predicted_parts, "predicted_parts")
-    gt = _check_labels(part_labels, "part_labels")
-    if pred.shape != gt.shape:
-        raise ValueError(f"predicted_parts {tuple(pred.shape)} and part_labels {tuple(gt.shape)} must have the same shape")
-    if pred.numel() == 0:
-        raise ValueError("mean_iou needs at least one point")
-    labels = torch.arange(num_parts)
-    p = pred[..., None] == labels  # (S, N, L)
-    g = gt[..., None] == labels
-    inter = (p & g).sum(dim=1).double()  # (S, L)
-    union = (p | g).sum(dim=1).double()
-    iou = torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union))
-    return float(iou.mean())
+    inter, union = _intersections_and_unions(predicted_parts, part_labels, num_parts)  # (S, L)
+    return float(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).mean())
 
 
 def segment_box_distance(points, segmentation, centers, quaternions, half_sizes) -> torch.Tensor:

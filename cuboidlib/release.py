@@ -38,7 +38,8 @@ from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
 from .train import TrainConfig, load_splits
 
-__all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit", "publish_run", "read_card", "cards_markdown"]
+__all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
+           "publish_run", "read_card", "cards_markdown"]
 
 CARD_FORMAT = "cuboidlib-checkpoint-card"
 
@@ -113,15 +114,19 @@ def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, b
     return torch.cat(features), torch.cat(centroids)
 
 
+@torch.no_grad()
+def _head_rms(model: CuboidAbstractionNet, features: torch.Tensor, centroids: torch.Tensor) -> float:
+    """RMS distance between tanh(translation head(features)) and the centroids, (K, C) and (K, 3)."""
+    if len(features) == 0:
+        raise ValueError("no cuboid exists on these shapes; the translation head cannot be compared")
+    predicted = torch.tanh(model.abstraction.D_cp.translation(features))
+    return float((predicted - centroids).square().sum(dim=-1).mean().sqrt())
+
+
 def translation_head_error(model: CuboidAbstractionNet, points: torch.Tensor) -> float:
     """RMS distance between the predicted translations t_m and the allocation centroids c_m, over the
     existing cuboids of ``points`` (S, N, 3) (network in evaluation mode, z = mu)."""
-    features, centroids = _features_and_centroids(model, points)
-    if len(features) == 0:
-        raise ValueError("no cuboid exists on these shapes; the translation head cannot be compared")
-    with torch.no_grad():
-        predicted = torch.tanh(model.abstraction.D_cp.translation(features))
-    return float((predicted - centroids).square().sum(dim=-1).mean().sqrt())
+    return _head_rms(model, *_features_and_centroids(model, points))
 
 
 def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridge: float = 1e-5) -> None:
@@ -171,13 +176,13 @@ def publish_run(
     if config.loss_config.centers_from_allocation:
         model = CuboidAbstractionNet(config.model_config)
         model.load_state_dict(state["model"])
-        val = splits["val"].points
-        before = translation_head_error(model, val)
+        val = _features_and_centroids(model, splits["val"].points)  # the head's inputs: unchanged by the fit
+        before = _head_rms(model, *val)
         fit_translation_head(model, splits["train"].points)
         translation = {"fitted_on": f"train split ({len(splits['train'])} shapes), existing cuboids",
                        "method": "ridge least squares of atanh(centroid) on the cuboid features (fit_translation_head)",
                        "rms_error_validation_before": round(before, 5),
-                       "rms_error_validation_after": round(translation_head_error(model, val), 5)}
+                       "rms_error_validation_after": round(_head_rms(model, *val), 5)}
         state["model"] = model.state_dict()
     save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
     model, _ = load_model(dest)
