@@ -189,6 +189,20 @@ def _as_batch(points, name: str) -> torch.Tensor:
     if p.dim() == 2:
         p = p[None]
     check_shape(p, ("B", "N", 3), f"{name} (or (N, 3) for one shape)")
+    if p.shape[1] == 0:
+        raise ValueError(f"{name} is empty (N = 0); the network needs points")
+    check_finite(p, name)
+    # The network only knows shapes normalised as in training (box centre 0, diagonal 1): refuse others
+    lo, hi = p.amin(dim=1), p.amax(dim=1)
+    diagonal, centre = (hi - lo).norm(dim=-1), ((hi + lo) / 2).norm(dim=-1)
+    bad = (diagonal < 0.25) | (diagonal > 4.0) | (centre > 0.5)
+    if bad.any():
+        b = int(torch.nonzero(bad)[0])
+        raise ValueError(
+            f"{name}: shape {b} is not normalised like the training shapes (bounding-box diagonal "
+            f"{float(diagonal[b]):.3g}, centre {float(centre[b]):.3g} from the origin; expected about 1 and 0); "
+            "normalise it first with cuboidlib.normalization.normalize (load_point_cloud does it)"
+        )
     return p
 
 
@@ -487,9 +501,10 @@ def resolve_checkpoint(name_or_path: str | os.PathLike) -> Path:
     """The checkpoint file meant by ``name_or_path``, in this order:
 
     1. an existing file: itself;
-    2. a folder: its ``best.pt`` (a ``cuboidlib train`` run folder), else its ``last.pt``;
+    2. a training run folder: its ``best.pt``, else its ``last.pt``;
     3. a bare name (no folder, no suffix) of a committed checkpoint, e.g. ``"chair"``:
-       ``checkpoint_dir() / "chair.pt"``.
+       ``checkpoint_dir() / "chair.pt"`` (also when a folder of that name without a run exists here,
+       such as an output folder).
 
     Raises ``FileNotFoundError`` naming what was looked for and the committed names available.
     """
@@ -500,11 +515,12 @@ def resolve_checkpoint(name_or_path: str | os.PathLike) -> Path:
         for name in ("best.pt", "last.pt"):
             if (path / name).is_file():
                 return path / name
-        raise FileNotFoundError(f"{path}: a folder without best.pt or last.pt (not a training run folder)")
     available = committed_checkpoints()
     text = str(name_or_path)
     if path.name == text and not path.suffix and text in available:
         return available[text]
+    if path.is_dir():
+        raise FileNotFoundError(f"{path}: a folder without best.pt or last.pt (not a training run folder)")
     names = ", ".join(available) if available else f"none yet in {checkpoint_dir()}"
     raise FileNotFoundError(
         f"{text}: no such checkpoint file, run folder or committed checkpoint name (committed: {names})"

@@ -195,7 +195,11 @@ def load_model(
     stored = state["config"]["model"]
     if config is not None:
         check_config_matches(stored, config.to_dict(), f"model config requested for {path}")
-    model = CuboidAbstractionNet(ModelConfig.from_dict(stored)).to(device)
+    try:
+        model_config = ModelConfig.from_dict(stored)  # sizes are bounded here, before any allocation
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: the stored model config is not usable: {exc}") from exc
+    model = CuboidAbstractionNet(model_config).to(device)
     try:
         model.load_state_dict(state["model"], strict=True)
     except RuntimeError as exc:

@@ -168,12 +168,28 @@ def _train_config_from_args(args):
     return TrainConfig.from_dict(data)
 
 
+def _check_writable_file(path: str, suffix: str, option: str) -> None:
+    """Refuse, before any work, an output file that could not be written at the end."""
+    import tempfile
+    from pathlib import Path
+
+    file = Path(path)
+    if file.suffix != suffix:
+        raise UserError(f"{option} {path}: the file must end in {suffix}")
+    try:  # the folder is made now, and a file written and removed in it
+        file.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=file.parent, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        raise UserError(f"{option} {path}: cannot write there ({exc.strerror or exc})") from exc
+
+
 def _cmd_train(args) -> int:
     from .train import Trainer, TrainingDiverged
 
     config = _train_config_from_args(args)
-    if args.release and not args.release.endswith(".pt"):
-        raise UserError(f"--release {args.release}: the released checkpoint must be a .pt file")
+    if args.release:
+        _check_writable_file(args.release, ".pt", "--release")
     if args.print_config:
         import json
 
@@ -211,7 +227,8 @@ def _add_evaluate_command(sub) -> None:
         "split, scored on the other 80 %%) and the average number of existing cuboids N_AC. --baseline adds "
         "the k-means + oriented-box baseline scored the same way.",
     )
-    p.add_argument("checkpoint", help="a checkpoint written by cuboidlib train (best.pt or last.pt)")
+    p.add_argument("checkpoint", help="a checkpoint file, a 'cuboidlib train' run folder (its best.pt) or the "
+                   "name of a committed checkpoint (e.g. chair)")
     p.add_argument("--split", choices=("train", "val", "test"), default="test", help="split to score (default: test)")
     p.add_argument("--baseline", action="store_true", help="also score the k-means + oriented-box baseline")
     p.add_argument("--baseline-boxes", type=int,
@@ -235,12 +252,12 @@ def _cmd_evaluate(args) -> int:
     import json
     from pathlib import Path
 
-    from .checkpoint import load_model
+    from .applications import load_trained_model
     from .evaluation import evaluate_baseline, evaluate_model, format_table
     from .metrics import ChamferConvention
     from .train import TrainConfig, load_splits, resolve_device
 
-    model, state = load_model(args.checkpoint, device=resolve_device(args.device))
+    model, state, _ = load_trained_model(args.checkpoint, resolve_device(args.device))
     config = TrainConfig.from_dict(state["config"])
     shapes = load_splits(config)[args.split]
     conventions = [ChamferConvention(norm, args.chamfer_directions, args.chamfer_scale, args.samples)
@@ -381,16 +398,14 @@ def _load_shape(path: str, n_points: int, seed: int):
     """A mesh (sampled with n_points) or a point cloud (subsampled to at most n_points), normalised."""
     from pathlib import Path
 
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES, is_mesh_file, load_point_cloud, read_point_cloud
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES, load_point_cloud
 
     _check_input(path)
     file = Path(path)
     if file.suffix.lower() not in set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES):
         raise UserError(f"{file}: unsupported file type {file.suffix or '(no suffix)'!r}; expected a mesh "
                         f"({' '.join(MESH_SUFFIXES)}) or a point cloud ({' '.join(POINT_CLOUD_SUFFIXES)})")
-    if not is_mesh_file(file):
-        n_points = min(n_points, len(read_point_cloud(file)))
-    return load_point_cloud(file, n_points, seed)
+    return load_point_cloud(file, n_points, seed, fewer_ok=True)
 
 
 def _check_part_names(args, pc) -> None:
@@ -688,9 +703,18 @@ def _cmd_view(args) -> int:
 
 
 
+def _missing_package(exc: ImportError) -> int:
+    print(f"cuboidlib: error: the package {exc.name or exc} is not installed; install cuboidlib with its "
+          "dependencies (README: python -m pip install -e .)", file=sys.stderr)
+    return 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:  # --help looks up library defaults, which import the dependencies
+        args = parser.parse_args(argv)
+    except ImportError as exc:
+        return _missing_package(exc)
     args.argv = argv
     try:
         return int(args.func(args) or 0)
@@ -700,6 +724,8 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - every error becomes one readable line unless --traceback
         if args.traceback:
             raise
+        if isinstance(exc, ImportError):
+            return _missing_package(exc)
         message = " ".join(str(exc).split()) or type(exc).__name__
         if isinstance(exc, (UserError, ValueError, OSError, FloatingPointError)):
             print(f"cuboidlib {args.command}: error: {message}", file=sys.stderr)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
+from .neighbors import nearest_indices
 from .geometry import (
     TensorLike,
     _as_exists_mask,
@@ -218,32 +219,19 @@ def _check_point_sets(
     return x.to(dtype).expand(batch, -1, -1), y.to(dtype).expand(batch, -1, -1)
 
 
-@torch.no_grad()
-def _nearest_indices(a: torch.Tensor, b: torch.Tensor, chunk: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Index of the nearest point of b for every point of a (B, Na) and vice versa (B, Nb).
-
-    One pass over chunks of a; the squared distances |a|^2 + |b|^2 - 2 a.b come from a matrix product.
-    """
-    a, b = a.detach(), b.detach()
-    b_sq = b.square().sum(-1)[:, None, :]  # (B, 1, Nb)
-    a_to_b = torch.empty(a.shape[:2], dtype=torch.long, device=a.device)
-    best_b = torch.full(b.shape[:2], float("inf"), dtype=a.dtype, device=a.device)
-    b_to_a = torch.zeros(b.shape[:2], dtype=torch.long, device=a.device)
-    for start in range(0, a.shape[1], chunk):  # loop over memory-sized chunks, not over points
-        part = a[:, start : start + chunk]
-        d2 = torch.baddbmm(b_sq + part.square().sum(-1)[..., None], part, b.transpose(1, 2), alpha=-2)
-        a_to_b[:, start : start + chunk] = d2.argmin(dim=2)
-        value, index = d2.min(dim=1)  # best point of this chunk for every point of b
-        better = value < best_b
-        best_b = torch.where(better, value, best_b)
-        b_to_a = torch.where(better, index + start, b_to_a)
-    return a_to_b, b_to_a
-
-
 def _gather_sq_dist(x: torch.Tensor, y: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """|x_i - y_index[i]|^2 for x (B, Nx, 3), y (B, Ny, 3), index (B, Nx) -> (B, Nx)."""
+    """|x_i - y_index[i]|^2 for x (B, Nx, 3), y (B, Ny, 3), index (B, Nx) -> (B, Nx).
+
+    Raises ValueError when a squared distance overflows the dtype (finite input, infinite result).
+    """
     partner = torch.gather(y, 1, index[..., None].expand(-1, -1, 3))
-    return (x - partner).square().sum(dim=-1)
+    d2 = (x - partner).square().sum(dim=-1)
+    if not torch.isfinite(d2).all():
+        raise ValueError(
+            f"squared distances overflow {str(d2.dtype).replace('torch.', '')} (coordinates up to "
+            f"{float(x.detach().abs().max()):.3g}); normalise the points or pass float64"
+        )
+    return d2
 
 
 def nearest_neighbors(
@@ -259,7 +247,7 @@ def nearest_neighbors(
     recomputed exactly from the chosen pairs, so they are differentiable with respect to both sets.
     """
     q, r = _check_point_sets(query, reference, ("query", "reference"), "nearest_neighbors")
-    index, _ = _nearest_indices(q, r, _auto_chunk(q.shape[0], r.shape[1], chunk_size))
+    index, _ = nearest_indices(q, r, _auto_chunk(q.shape[0], r.shape[1], chunk_size))
     return _gather_sq_dist(q, r, index), index
 
 
@@ -282,7 +270,7 @@ def chamfer_distance(
     searching in chunks of ``chunk_size`` points of a (default: about 2^24 distances per chunk).
     """
     x, y = _check_point_sets(a, b, ("a", "b"), "chamfer_distance")
-    x_to_y, y_to_x = _nearest_indices(x, y, _auto_chunk(x.shape[0], y.shape[1], chunk_size))
+    x_to_y, y_to_x = nearest_indices(x, y, _auto_chunk(x.shape[0], y.shape[1], chunk_size))
     forward = _gather_sq_dist(x, y, x_to_y).mean(dim=1)
     backward = _gather_sq_dist(y, x, y_to_x).mean(dim=1)
     total = forward + backward

@@ -518,9 +518,12 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
         raise ValueError(f"points must have shape (N, 3) with N >= 1, got {p.shape}")
     if not np.isfinite(p).all():
         raise ValueError("points contain NaN or infinite values")
-    if lab.shape != (len(p),) or not np.issubdtype(lab.dtype, np.integer) or (lab < -1).any():
-        raise ValueError(f"labels must be ({len(p)},) integers >= -1 (cuboid indices), got shape {lab.shape}, "
-                         f"dtype {lab.dtype}")
+    if np.abs(p).max() > np.finfo(np.float32).max:
+        raise ValueError(f"points up to {np.abs(p).max():.3g} do not fit the PLY file's float32; rescale them")
+    if (lab.shape != (len(p),) or not np.issubdtype(lab.dtype, np.integer) or (lab < -1).any()
+            or (lab >= 2**31).any()):
+        raise ValueError(f"labels must be ({len(p)},) integers in [-1, 2^31) (cuboid indices), got shape "
+                         f"{lab.shape}, dtype {lab.dtype}" + (f", largest {lab.max()}" if lab.size else ""))
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     n = None if normals is None else _numpy(normals).astype(np.float64)
     if n is not None:
@@ -533,9 +536,10 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
         table[name] = p[:, k]
         if n is not None:
             table["n" + name] = n[:, k]
-    colors = palette_rgba(int(lab.max()) + 1 if len(lab) else 0)[:, :3]
+    used, which = np.unique(lab[lab >= 0], return_inverse=True)  # colour only the labels present
+    colors = np.array([_rgb255(cuboid_color(int(u))) for u in used], dtype=np.uint8).reshape(-1, 3)
     rgb = np.empty((len(p), 3), np.uint8)
-    rgb[lab >= 0] = colors[lab[lab >= 0]]
+    rgb[lab >= 0] = colors[which]
     rgb[lab < 0] = _rgb255(UNLABELLED)
     for k, name in enumerate(("red", "green", "blue")):
         table[name] = rgb[:, k]

@@ -227,8 +227,13 @@ def _check_inputs(points, normals) -> tuple[torch.Tensor, torch.Tensor]:
         raise ValueError("points is empty (N = 0); a point cloud with at least num_cuboids points is needed")
     check_finite(p, "points")
     check_finite(n, "normals")
-    dtype = torch.promote_types(p.dtype, n.dtype)
+    # float16 / bfloat16 lack the range and precision of the optimisation: computed in float32
+    dtype = torch.promote_types(torch.promote_types(p.dtype, n.dtype), torch.float32)
     p, n = p.to(dtype), n.to(dtype)
+    extent = (p.amax(dim=1) - p.amin(dim=1)).amax(dim=-1)  # (B,)
+    if (extent == 0).any():
+        raise ValueError(f"points of shape {int(torch.nonzero(extent == 0)[0])} are all identical; "
+                         "a degenerate cloud has no cuboid abstraction")
     # Accept normals of any non-zero length (files often store them slightly off unit length):
     # normalise them; zero vectors stay zero and are rejected by the check below.
     n = n / torch.linalg.vector_norm(n, dim=-1, keepdim=True).clamp_min(1e-12)

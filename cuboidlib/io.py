@@ -28,6 +28,7 @@ import csv
 import json
 import os
 import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 import numpy as np
@@ -146,12 +147,21 @@ def _unit(normals: np.ndarray) -> np.ndarray:
     return (normals / np.linalg.norm(normals, axis=1, keepdims=True)).astype(np.float32)
 
 
-def _as_labels(values: np.ndarray, source: str) -> np.ndarray:
+def _as_labels(values: np.ndarray, source: str, limit: int = 2**62) -> np.ndarray:
+    """Labels as int64; whole numbers with |label| < ``limit``, else a ValueError naming ``source``."""
     values = np.asarray(values)
+    if values.dtype.kind not in "fiub":
+        raise ValueError(f"{source}: labels must be whole numbers, got dtype {values.dtype}")
     if values.dtype.kind == "f":
         if not np.isfinite(values).all() or (values != np.round(values)).any():
             raise ValueError(f"{source}: labels must be whole numbers")
+    if values.size and (np.abs(values.astype(np.float64)).max() >= limit):
+        raise ValueError(f"{source}: labels must lie in ({-limit}, {limit}); got {values.max()} / {values.min()}")
     return values.astype(np.int64)
+
+
+# Largest magnitude a float32 coordinate (PLY, .npy) can hold.
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 # ----------------------------------------------------------------------------------------- PLY
@@ -173,13 +183,21 @@ def _parse_ply_header(path: Path, data: bytes):
         raise ValueError(f"{path}: PLY header has no 'end_header' line")
     body = data.index(b"\n", end) + 1
     fmt, elements = None, []
+    expected = {"format": 3, "element": 3, "property": 3}  # tokens of each header line (list: 5)
     for line in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
         tok = line.split()
         if not tok or tok[0] in ("comment", "obj_info"):
             continue
+        if tok[0] not in expected:
+            raise ValueError(f"{path}: unknown PLY header line {line.strip()!r}")
+        wanted = 5 if tok[:2] == ["property", "list"] else expected[tok[0]]
+        if len(tok) != wanted:
+            raise ValueError(f"{path}: malformed PLY header line {line.strip()!r} (expected {wanted} words)")
         if tok[0] == "format":
             fmt = tok[1]
         elif tok[0] == "element":
+            if not tok[2].isdigit():
+                raise ValueError(f"{path}: PLY element {tok[1]!r} has count {tok[2]!r}; expected a whole number >= 0")
             elements.append({"name": tok[1], "count": int(tok[2]), "props": []})
         elif tok[0] == "property":
             if not elements:
@@ -264,7 +282,7 @@ def _write_ply(path: Path, points, normals, labels, ascii: bool) -> None:
     with open(path, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         if ascii:
-            fmt = " ".join("%d" if t == "i4" else "%.7g" for _, t in fields)
+            fmt = " ".join("%d" if t == "i4" else "%.9g" for _, t in fields)  # float32 exact
             np.savetxt(f, np.stack([table[n].astype(np.float64) for n, _ in fields], axis=1), fmt=fmt)
         else:
             f.write(table.tobytes())
@@ -283,19 +301,17 @@ def _from_columns(table: np.ndarray, path: Path) -> PointCloud:
 
 
 def _read_text(path: Path) -> PointCloud:
-    rows = [ln.replace(",", " ").split() for ln in path.read_text(errors="replace").splitlines()]
-    rows = [r for r in rows if r and not r[0].startswith("#")]
-    if not rows:
+    # numpy's C parser, one pass over the lines (commas read as spaces, '#' starts a comment)
+    with open(path, encoding="utf-8", errors="replace") as f, warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "loadtxt: input contained no data")  # reported below, with the file
+        try:
+            table = np.loadtxt((line.replace(",", " ") for line in f), dtype=np.float64, comments="#", ndmin=2)
+        except ValueError as exc:
+            detail = str(exc).split(";")[0]  # numpy's own hint after ';' is about its arguments
+            problem = "rows have different numbers of columns" if "columns changed" in detail else "non-numeric value"
+            raise ValueError(f"{path}: {problem} ({detail})") from exc
+    if table.size == 0:
         raise ValueError(f"{path}: contains no points")
-    widths = {len(r) for r in rows}
-    if len(widths) > 1:
-        first = next(i for i, r in enumerate(rows) if len(r) != len(rows[0]))
-        raise ValueError(f"{path}: rows have different numbers of columns ({len(rows[0])} and "
-                         f"{len(rows[first])} at data row {first})")
-    try:
-        table = np.array(rows, dtype=np.float64)
-    except ValueError as exc:
-        raise ValueError(f"{path}: non-numeric value in the rows ({exc})") from exc
     return _from_columns(table, path)
 
 
@@ -335,6 +351,9 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     else:
         raise ValueError(f"{path}: unknown point cloud format {suffix!r}; expected one of {POINT_CLOUD_SUFFIXES}")
     validate_point_cloud(pc.points, pc.normals, pc.labels, str(path))
+    if np.abs(pc.points).max() > _FLOAT32_MAX:
+        raise ValueError(f"{path}: coordinates up to {np.abs(pc.points).max():.3g} exceed the float32 range "
+                         "cuboidlib reads points in; rescale the file")
     pc.points = pc.points.astype(np.float32)
     if pc.normals is not None:
         pc.normals = _unit(pc.normals)
@@ -363,14 +382,20 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
     points = np.asarray(points, dtype=np.float64)
     normals = None if normals is None else np.asarray(normals, dtype=np.float64)
     labels = None if labels is None else np.asarray(labels)
-    validate_point_cloud(points, normals, labels, f"{path} (writing)")
+    source = f"{path} (writing)"
+    validate_point_cloud(points, normals, labels, source)
     suffix = path.suffix.lower()
+    if suffix not in (".ply", ".txt", ".npy"):
+        raise ValueError(f"{path}: unknown point cloud format {suffix!r}; write .ply, .txt or .npy")
+    if suffix != ".txt" and np.abs(points).max() > _FLOAT32_MAX:
+        raise ValueError(f"{source}: coordinates up to {np.abs(points).max():.3g} do not fit the float32 of "
+                         f"{suffix} files; rescale them or write .txt")
+    if labels is not None:  # PLY stores int32 labels, .npy float32 (whole numbers exact below 2^24)
+        labels = _as_labels(labels, source, limit={".ply": 2**31, ".npy": 2**24}.get(suffix, 2**62))
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".ply":
-        _write_ply(path, points, normals, None if labels is None else labels.astype(np.int64), ascii)
+        _write_ply(path, points, normals, labels, ascii)
         return path
-    if suffix not in (".txt", ".npy"):
-        raise ValueError(f"{path}: unknown point cloud format {suffix!r}; write .ply, .txt or .npy")
     if labels is not None and normals is None:
         raise ValueError(f"{path}: the {suffix} layout stores labels in column 7, after normals; give normals too")
     cols = [points] + ([normals] if normals is not None else []) + ([labels[:, None]] if labels is not None else [])
@@ -378,7 +403,8 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
     if suffix == ".npy":
         np.save(path, table.astype(np.float32))
     else:
-        fmt = ["%.6f"] * (table.shape[1] - (labels is not None)) + (["%d"] if labels is not None else [])
+        # 9 significant digits: every float32 value reads back exactly, at any magnitude
+        fmt = ["%.9g"] * (table.shape[1] - (labels is not None)) + (["%d"] if labels is not None else [])
         np.savetxt(path, table, fmt=fmt)
     return path
 
@@ -407,6 +433,10 @@ def _load_mesh(path: Path) -> trimesh.Trimesh:
         raise ValueError(f"{path}: contains no faces ({type(loaded).__name__}); for a point cloud use read_point_cloud")
     if len(loaded.faces) == 0:
         raise ValueError(f"{path}: the mesh is empty (the file holds no triangles)")
+    faces = np.asarray(loaded.faces)
+    if faces.min() < 0 or faces.max() >= len(loaded.vertices):
+        bad = faces.max() if faces.max() >= len(loaded.vertices) else faces.min()
+        raise ValueError(f"{path}: a face refers to vertex {bad}, but the mesh has {len(loaded.vertices)} vertices")
     if not np.isfinite(loaded.vertices).all():
         raise ValueError(f"{path}: the mesh has NaN or infinite vertex coordinates")
     if loaded.area <= 0:
@@ -484,6 +514,7 @@ def load_point_cloud(
     normals: str = "auto",
     labels_path: str | os.PathLike | None = None,
     k: int = 16,
+    fewer_ok: bool = False,
 ) -> PointCloud:
     """Read any supported file as a validated, normalised point cloud with normals.
 
@@ -499,6 +530,8 @@ def load_point_cloud(
             (always estimate) or ``"file"`` (require them in the file).
         labels_path: an optional separate label file (one integer per point, e.g. ``.seg``).
         k: neighbours for normal estimation.
+        fewer_ok: for point clouds with fewer than ``n_points`` points, keep them all instead of
+            raising.
     """
     path = _check_file(path)
     if normals not in ("auto", "estimate", "file"):
@@ -516,6 +549,8 @@ def load_point_cloud(
     if normals == "file" and pc.normals is None:
         raise ValueError(f"{path}: has no normals (and normals='file' forbids estimating them)")
     if n_points is not None and not is_mesh:
+        if fewer_ok:
+            n_points = min(n_points, len(pc))
         validate_point_cloud(pc.points, None, None, str(path), n_points=n_points)
         if n_points < len(pc):
             keep = np.sort(np.random.default_rng(seed).choice(len(pc), n_points, replace=False))

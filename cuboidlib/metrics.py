@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ._checks import as_float_tensor, check_shape
+from ._checks import as_float_tensor, check_finite, check_shape
 from .distance import nearest_neighbors
 from .geometry import quaternion_to_rotation_matrix, sample_cuboid_surfaces, validate_cuboids
 
@@ -163,10 +163,15 @@ def normal_consistency(
     check_shape(points, ("B", "N", 3), "points")
     if normals.shape != points.shape:
         raise ValueError(f"normals must have the shape of points {tuple(points.shape)}, got {tuple(normals.shape)}")
+    check_finite(normals, "normals")
+    length = normals.norm(dim=-1)
+    if (length < 1e-12).any():
+        raise ValueError(f"normals: {int((length < 1e-12).sum())} have zero length; every point needs a normal "
+                         "(estimate them with cuboidlib.normals.estimate_normals)")
     samples = _sample_cuboids(points, centers, quaternions, half_sizes, exists, n_samples, generator)
     _, nearest = nearest_neighbors(points, samples.points)
     nearest_normals = _gather(samples.normals, nearest)
-    unit = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    unit = normals / length[..., None]
     return (unit * nearest_normals).sum(dim=-1).abs().mean(dim=1)
 
 
@@ -219,6 +224,13 @@ def _intersections_and_unions(predicted_parts, part_labels, num_parts: int) -> t
         raise ValueError(f"predicted_parts {tuple(pred.shape)} and part_labels {tuple(gt.shape)} must have the same shape")
     if pred.numel() == 0:
         raise ValueError("an IoU needs at least one point")
+    if isinstance(num_parts, bool) or not isinstance(num_parts, int) or num_parts < 1:
+        raise ValueError(f"num_parts must be a positive integer, got {num_parts!r}")
+    for t, name in ((gt, "part_labels"), (pred, "predicted_parts")):
+        if int(t.max()) >= num_parts:
+            raise ValueError(f"{name} holds label {int(t.max())}, but num_parts = {num_parts} allows 0 .. {num_parts - 1}")
+    if int(gt.min()) < 0:
+        raise ValueError(f"part_labels holds label {int(gt.min())}; true part labels are >= 0")
     labels = torch.arange(num_parts)
     p = pred[..., None] == labels  # (S, N, L)
     g = gt[..., None] == labels

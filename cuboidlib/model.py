@@ -37,6 +37,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from .neighbors import knn_indices
 
 __all__ = [
     "ModelConfig",
@@ -57,9 +58,12 @@ __all__ = [
 # Edges processed at once by the chunked EdgeConv: small enough for a chunk's (edges, channels)
 # tensors to stay in the CPU cache, large enough for matrix products to run at full speed.
 _EDGES_PER_CHUNK = 1 << 14
-# Entries of a distance-matrix block in knn_indices (16 MiB in float32).
-_KNN_BLOCK = 1 << 22
 
+
+# Limits of a ModelConfig (checked before anything is allocated): far above the paper's network.
+_MAX_WIDTH = 8192
+_MAX_LAYERS = 8
+_MAX_PARAMETERS = 50_000_000
 
 # ----------------------------------------------------------------------------------------------
 # Configuration
@@ -137,6 +141,36 @@ class ModelConfig:
         if isinstance(slope, bool) or not isinstance(slope, (int, float)) or not 0.0 <= slope < 1.0:
             raise ValueError(f"ModelConfig.negative_slope must be a number in [0, 1), got {slope!r}")
         object.__setattr__(self, "negative_slope", float(slope))
+        # Bounds, so that a config read from a file cannot ask for an absurd allocation
+        for name in counts:
+            if getattr(self, name) > _MAX_WIDTH:
+                raise ValueError(f"ModelConfig.{name} = {getattr(self, name)} is above the limit of {_MAX_WIDTH}")
+        for name in ("edge_dims", "cuboid_feature_dims"):
+            value = getattr(self, name)
+            if len(value) > _MAX_LAYERS or max(value) > _MAX_WIDTH:
+                raise ValueError(f"ModelConfig.{name} = {list(value)} has more than {_MAX_LAYERS} layers or a "
+                                 f"width above {_MAX_WIDTH}")
+        if self.k > 1024:
+            raise ValueError(f"ModelConfig.k = {self.k} is above the limit of 1024 neighbours")
+        if self.approximate_parameters() > _MAX_PARAMETERS:
+            raise ValueError(
+                f"ModelConfig describes a network of about {self.approximate_parameters() / 1e6:.0f} million "
+                f"parameters; at most {_MAX_PARAMETERS / 1e6:.0f} million are accepted (the paper's: "
+                f"{ModelConfig().approximate_parameters() / 1e6:.1f} million)"
+            )
+
+    def approximate_parameters(self) -> int:
+        """Number of weights of the network's matrices (biases and normalisation left out)."""
+        widths, total, prev = self.edge_dims, 0, 3
+        for w in widths:  # EdgeConv blocks: two 1x1 layers on (x_i, x_j - x_i)
+            total += 2 * prev * w + w * w
+            prev = w
+        total += self.point_feature_dim * self.global_dim + 2 * self.global_dim * self.latent_dim
+        chain = (self.latent_dim + self.cuboid_code_dim,) + self.cuboid_feature_dims
+        total += sum(a * b for a, b in zip(chain, chain[1:])) + self.num_cuboids * self.cuboid_code_dim
+        f_c = self.cuboid_feature_dims[-1]
+        total += f_c * (self.exist_hidden_dim + 10) + (self.point_feature_dim + f_c) * self.seg_dim
+        return total
 
     @classmethod
     def small(cls, **overrides) -> "ModelConfig":
@@ -181,41 +215,6 @@ class ModelConfig:
 # ----------------------------------------------------------------------------------------------
 # Helpers
 # ----------------------------------------------------------------------------------------------
-
-
-def knn_indices(x: torch.Tensor, k: int) -> torch.Tensor:
-    """Indices of the k nearest neighbours of every point in its own cloud, the point itself included.
-
-    x: (B, N, C) coordinates or features (Euclidean distance in C dimensions). Returns (B, N, k)
-    int64 indices into dim 1, in no particular order; each row contains its own index. No gradient
-    flows through the choice of neighbours. The squared distances are computed block-wise as
-    |x_j|^2 - 2 x_i . x_j (the |x_i|^2 term is the same for a whole row, so it does not change the
-    ranking) and the smallest k are kept with ``topk``.
-    """
-    check_shape(x, ("B", "N", "C"), "x")
-    batch, n, _ = x.shape
-    if not 1 <= k <= n:
-        raise ValueError(f"k must be in [1, N] = [1, {n}], got k = {k}")
-    x = x.detach()
-    out = torch.empty(batch, n, k, dtype=torch.long, device=x.device)
-    # torch.topk on the CPU switches from a selection algorithm to a faster partial sort on rows
-    # of at least 64 k entries; shorter rows are padded with +inf, which is never selected.
-    width = max(n, 64 * k) if x.device.type == "cpu" else n
-    rows = max(1, min(n, _KNN_BLOCK // width))
-    block = x.new_full((rows, width), math.inf)
-    sq = (x * x).sum(-1)
-    with torch.no_grad():
-        for b in range(batch):
-            for r0 in range(0, n, rows):
-                r1 = min(n, r0 + rows)
-                d = block[: r1 - r0]
-                torch.addmm(sq[b].unsqueeze(0), x[b, r0:r1], x[b].T, alpha=-2.0, out=d[:, :n])
-                own = torch.arange(r0, r1, device=x.device)
-                d[own - r0, own] = -math.inf  # the point itself is always one of its neighbours
-                out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=False).indices
-    # Rows of non-finite features (a diverged network) may pick padding columns: keep every index valid,
-    # so the NaNs reach the outputs, where training detects them, instead of an indexing error.
-    return out.clamp_(max=n - 1)
 
 
 def _uses_batch_stats(bn: nn.BatchNorm1d) -> bool:

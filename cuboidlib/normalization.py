@@ -67,10 +67,11 @@ def normalize(points: torch.Tensor | np.ndarray) -> tuple:
     if t.shape[-2] == 0:
         raise ValueError("points is empty (0 points); at least one point is required")
     check_finite(t, "points")
-    lo, hi = t.amin(dim=-2), t.amax(dim=-2)
+    wide = t.double()  # float32 coordinates near their limit would overflow in (hi - lo) and the norm
+    lo, hi = wide.amin(dim=-2), wide.amax(dim=-2)
     center = (lo + hi) / 2
     scale = torch.linalg.vector_norm(hi - lo, dim=-1)
-    magnitude = t.detach().abs().amax(dim=(-2, -1)).clamp_min(1.0)
+    magnitude = wide.detach().abs().amax(dim=(-2, -1)).clamp_min(1.0)
     degenerate = scale <= _DEGENERATE_RTOL * magnitude
     if degenerate.any():
         which = "" if t.dim() == 2 else f" (batch entry {int(torch.nonzero(degenerate)[0])})"
@@ -78,7 +79,13 @@ def normalize(points: torch.Tensor | np.ndarray) -> tuple:
             f"points are all identical{which}: the bounding box has zero size, so the shape cannot be "
             "normalised to unit diagonal"
         )
-    normalized = (t - center.unsqueeze(-2)) / scale[..., None, None]
+    if not torch.isfinite(scale.to(t.dtype)).all():
+        raise ValueError(
+            f"points are too large for {str(t.dtype).replace('torch.', '')}: the bounding-box diagonal "
+            f"{float(scale.max()):.3g} cannot be represented; pass float64 coordinates or rescale them"
+        )
+    normalized = ((wide - center.unsqueeze(-2)) / scale[..., None, None]).to(t.dtype)
+    center, scale = center.to(t.dtype), scale.to(t.dtype)
     if is_numpy:
         return normalized.numpy(), center.numpy(), scale.numpy()
     return normalized, center, scale
@@ -103,7 +110,15 @@ def denormalize(points: torch.Tensor | np.ndarray, center, scale) -> torch.Tenso
         raise ValueError(f"center must have shape {tuple(t.shape[:-2]) + (3,)}, got {tuple(c.shape)}")
     if s.shape != t.shape[:-2]:
         raise ValueError(f"scale must have shape {tuple(t.shape[:-2])}, got {tuple(s.shape)}")
+    check_finite(t, "points")
+    check_finite(c, "center")
+    check_finite(s, "scale")
     if (s <= 0).any():
         raise ValueError("scale must be positive (it is the bounding-box diagonal before normalisation)")
     out = t * s[..., None, None] + c.unsqueeze(-2)
+    if not torch.isfinite(out).all():
+        raise ValueError(
+            f"denormalised points overflow {str(t.dtype).replace('torch.', '')} (scale up to "
+            f"{float(s.max()):.3g}, |center| up to {float(c.abs().max()):.3g}); pass float64 points"
+        )
     return out.numpy() if is_numpy else out

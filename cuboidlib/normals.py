@@ -19,9 +19,9 @@ a unit normal in two steps:
 
 The outcome is judged with :func:`normal_errors` against known normals (``benchmarks/
 bench_shapes.py`` measures it on the procedural shapes). Points are (N, 3) numpy arrays or torch
-tensors (the result has the input's kind); the k-nearest-neighbour search is exact and chunked
-(``chunk_size`` query rows at a time), so memory is O(chunk_size * N) and time O(N^2): fine for
-the few thousand points of a training shape, slow beyond ~10^5 points.
+tensors (the result has the input's kind); the k-nearest-neighbour search is the exact, block-wise one
+of :mod:`cuboidlib.neighbors`, so memory is bounded and time O(N^2): fine for the few thousand points
+of a training shape; :func:`estimate_normals` refuses more than ``MAX_POINTS`` points (subsample first).
 """
 
 from __future__ import annotations
@@ -30,8 +30,13 @@ import numpy as np
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from .neighbors import knn_indices
 
-__all__ = ["knn_indices", "pca_normals", "orient_normals", "estimate_normals", "normal_errors"]
+# Largest cloud estimate_normals accepts: its cost grows as N^2 (about 40 s for 20 000 points on one
+# laptop core); a larger cloud should be subsampled first (load_point_cloud(..., n_points=...)).
+MAX_POINTS = 20_000
+
+__all__ = ["MAX_POINTS", "pca_normals", "orient_normals", "estimate_normals", "normal_errors"]
 
 
 def _as_points(points, name: str = "points") -> tuple[torch.Tensor, bool]:
@@ -44,33 +49,16 @@ def _as_points(points, name: str = "points") -> tuple[torch.Tensor, bool]:
     return t, is_numpy
 
 
+def _knn(p: torch.Tensor, k: int) -> torch.Tensor:
+    """(N, k) indices of each point's k nearest points, itself first, then by increasing distance."""
+    return knn_indices(p[None], k, sorted=True)[0]
+
+
 def _out(t: torch.Tensor, is_numpy: bool):
     return t.cpu().numpy() if is_numpy else t
 
 
-def knn_indices(points, k: int, chunk_size: int = 1024) -> torch.Tensor:
-    """Indices (N, k) of each point's ``k`` nearest points (itself first), exact, chunked.
-
-    Args:
-        points: (N, 3) array or tensor.
-        k: number of neighbours, 1 <= k <= N.
-        chunk_size: query rows per distance block (memory ~ chunk_size * N).
-    """
-    p, _ = _as_points(points)
-    n = p.shape[0]
-    if not 1 <= k <= n:
-        raise ValueError(f"k must be between 1 and the number of points ({n}), got {k}")
-    out = torch.empty((n, k), dtype=torch.long, device=p.device)
-    sq = (p * p).sum(dim=1)
-    for s in range(0, n, chunk_size):
-        q = p[s:s + chunk_size]
-        d2 = sq[s:s + chunk_size, None] - 2 * q @ p.T + sq[None, :]
-        d2[torch.arange(len(q)), torch.arange(s, s + len(q))] = -1.0  # itself first
-        out[s:s + chunk_size] = torch.topk(d2, k, dim=1, largest=False).indices
-    return out
-
-
-def pca_normals(points, k: int = 16, sigma_neighbour: int = 4, chunk_size: int = 1024):
+def pca_normals(points, k: int = 16, sigma_neighbour: int = 4):
     """Unoriented unit normals (N, 3): smallest-eigenvalue eigenvector of each kNN covariance.
 
     Neighbour ``j`` of point ``i`` has the Gaussian weight ``exp(-|p_j - p_i|^2 / (2 sigma_i^2))``
@@ -81,7 +69,7 @@ def pca_normals(points, k: int = 16, sigma_neighbour: int = 4, chunk_size: int =
     p, is_numpy = _as_points(points)
     if not 0 <= sigma_neighbour < k:
         raise ValueError(f"sigma_neighbour must be in [0, k), got {sigma_neighbour} with k={k}")
-    idx = knn_indices(p, k, chunk_size)
+    idx = _knn(p, k)
     nb = p[idx].double()  # (N, k, 3)
     d2 = ((nb - nb[:, :1]) ** 2).sum(dim=-1)
     if sigma_neighbour > 0:
@@ -129,7 +117,7 @@ def orient_normals(points, normals, ray_radius: float | None = None, max_occlude
         q = p
     if ray_radius is None:
         kq = min(4, q.shape[0])
-        nn3 = q[knn_indices(q, kq)[:, -1]]
+        nn3 = q[_knn(q, kq)[:, -1]]
         ray_radius = 1.2 * float(torch.linalg.vector_norm(nn3 - q, dim=1).median())
     rho2, dead2, cap = ray_radius**2, (0.1 * ray_radius) ** 2, far * float((q.amax(0) - q.amin(0)).norm())
     # Ray fans: the normal and 4 directions tilted from it by `tilt`, on each side.
@@ -163,7 +151,7 @@ def orient_normals(points, normals, ray_radius: float | None = None, max_occlude
     if vote_neighbours > 0 and N > 1:
         # Tangent-plane vote: neighbours lying near the point's tangent plane with nearly parallel
         # normals are on the same surface patch, so should share its orientation.
-        idx = knn_indices(p, min(vote_neighbours + 1, N))[:, 1:]
+        idx = _knn(p, min(vote_neighbours + 1, N))[:, 1:]
         rel = p[idx] - p[:, None, :]
         off_plane = (rel * n[:, None, :]).sum(dim=-1).abs()
         agree = (n[idx] * n[:, None, :]).sum(dim=-1)
@@ -173,7 +161,7 @@ def orient_normals(points, normals, ray_radius: float | None = None, max_occlude
     return _out(n, is_numpy)
 
 
-def estimate_normals(points, k: int = 16, orient: bool = True, chunk_size: int = 1024):
+def estimate_normals(points, k: int = 16, orient: bool = True):
     """Unit normals (N, 3) for points (N, 3): PCA over ``k`` neighbours, oriented outward.
 
     With ``orient=False`` the signs are those of the eigen-solver (arbitrary).
@@ -181,9 +169,15 @@ def estimate_normals(points, k: int = 16, orient: bool = True, chunk_size: int =
     p, is_numpy = _as_points(points)
     if p.shape[0] < 3:
         raise ValueError(f"points must hold at least 3 points to estimate normals, got {p.shape[0]}")
+    if p.shape[0] > MAX_POINTS:
+        raise ValueError(
+            f"points holds {p.shape[0]} points; normal estimation takes time N^2 and accepts at most "
+            f"{MAX_POINTS}: subsample first (for files: load_point_cloud(path, n_points=4096)) or provide normals"
+        )
     if float((p.amax(dim=0) - p.amin(dim=0)).max()) == 0.0:
         raise ValueError("points are all identical; no normals can be estimated")
-    normals = pca_normals(p, min(k, p.shape[0]), sigma_neighbour=min(4, p.shape[0] - 1), chunk_size=chunk_size)
+    p = (p.double() - p.double().mean(dim=0)).to(p.dtype)  # normals do not move; precision far from 0 does
+    normals = pca_normals(p, min(k, p.shape[0]), sigma_neighbour=min(4, p.shape[0] - 1))
     if orient:
         normals = orient_normals(p, normals)
     return _out(normals, is_numpy)

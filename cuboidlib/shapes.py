@@ -709,8 +709,23 @@ class ShapeCollection:
         missing = {"category", "points", "normals", "labels", "structures", "structure_ids"} - set(data)
         if missing:
             raise ValueError(f"{path}: not a shape collection (missing arrays {sorted(missing)})")
-        return cls(category=str(data["category"]), points=data["points"], normals=data["normals"],
-                   labels=data["labels"], structures=data["structures"], structure_ids=data["structure_ids"],
+        category = str(data["category"])
+        if category not in CATEGORIES:
+            raise ValueError(f"{path}: unknown category {category!r}; expected one of {CATEGORIES}")
+        points, normals, labels = data["points"], data["normals"], data["labels"]
+        if points.ndim != 3 or points.shape[-1] != 3 or normals.shape != points.shape:
+            raise ValueError(f"{path}: points {points.shape} and normals {normals.shape} must both be (S, N, 3)")
+        if labels.shape != points.shape[:2] or data["structures"].shape != points.shape[:1] or \
+                data["structure_ids"].shape != points.shape[:1]:
+            raise ValueError(f"{path}: labels, structures and structure ids do not match points {points.shape}")
+        if points.dtype.kind != "f" or normals.dtype.kind != "f" or labels.dtype.kind not in "iu":
+            raise ValueError(f"{path}: points and normals must be floats and labels integers")
+        if not (np.isfinite(points).all() and np.isfinite(normals).all()):
+            raise ValueError(f"{path}: holds NaN or infinite coordinates")
+        if labels.size and (labels.min() < 0 or labels.max() >= len(PART_NAMES[category])):
+            raise ValueError(f"{path}: part labels outside 0 .. {len(PART_NAMES[category]) - 1}")
+        return cls(category=category, points=points, normals=normals, labels=labels.astype(np.int64),
+                   structures=data["structures"], structure_ids=data["structure_ids"].astype(np.int64),
                    seed=int(data.get("seed", 0)))
 
 
@@ -753,9 +768,11 @@ def make_collection(
         cache_file = cache_dir / f"{category}_S{n_shapes}_N{n_points}_seed{seed}_v{GENERATOR_VERSION}.npz"
         if cache_file.is_file():
             try:
-                return ShapeCollection.load(cache_file)
+                cached = ShapeCollection.load(cache_file)
+                if (cached.category, cached.points.shape, cached.seed) == (category, (n_shapes, n_points, 3), seed):
+                    return cached
             except ValueError:
-                pass  # unreadable cache entry: regenerate and overwrite it
+                pass  # unreadable, invalid or mismatched cache entry: regenerate and overwrite it
     points = np.empty((n_shapes, n_points, 3), np.float32)
     normals = np.empty((n_shapes, n_points, 3), np.float32)
     labels = np.empty((n_shapes, n_points), np.int64)

@@ -27,3 +27,12 @@ def restore_threads():
     threads = torch.get_num_threads()
     yield
     torch.set_num_threads(threads)
+
+
+# Property-based tests (Hypothesis) draw the same cases on every run, so a CI run is repeatable;
+# `pytest --hypothesis-profile explore` draws new, more numerous cases to look for failures.
+from hypothesis import settings  # noqa: E402
+
+settings.register_profile("repeatable", derandomize=True, database=None)
+settings.register_profile("explore", max_examples=500, database=None)
+settings.load_profile("repeatable")

@@ -333,11 +333,6 @@ def test_knn_keeps_the_point_itself_among_duplicates():
     assert all(len(set(row.tolist())) == 5 for row in idx[0])
 
 
-def test_knn_rejects_k_larger_than_n():
-    with pytest.raises(ValueError, match=r"k must be in \[1, N\]"):
-        knn_indices(torch.randn(1, 4, 3), 5)
-
-
 # ----------------------------------------------------------------------------------------------
 # Invariances and the latent code
 # ----------------------------------------------------------------------------------------------

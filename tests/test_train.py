@@ -490,7 +490,13 @@ def test_cli_release_refuses_a_bad_file_name_before_training(tmp_path, tiny, cap
     config, _ = tiny
     cfg = config.replace(max_steps=2).save_json(tmp_path / "c.json")
     assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--release", "x.json"]) == 2
-    assert "must be a .pt file" in capsys.readouterr().err
+    assert "must end in .pt" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the release folder should be")
+    release = str(blocker / "net.pt")
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--release", release]) == 2
+    assert f"--release {release}: cannot write there" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
 
 

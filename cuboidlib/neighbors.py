@@ -1,0 +1,120 @@
+"""Exact nearest-neighbour search, the one used everywhere in cuboidlib.
+
+Three places need neighbours: EdgeConv builds a k-nearest-neighbour graph of points and of features
+(Sec. 3.2, :mod:`cuboidlib.model`), normal estimation fits planes to point neighbourhoods
+(:mod:`cuboidlib.normals`), and the Chamfer distance pairs every point with the nearest point of the
+other set in both directions (:mod:`cuboidlib.distance`, :mod:`cuboidlib.metrics`). All three use the
+two functions here:
+
+- :func:`knn_indices`: the ``k`` nearest points of every point in its own cloud, (B, N, C) -> (B, N, k);
+- :func:`nearest_indices`: for two sets a (B, Na, C) and b (B, Nb, C), the nearest point of b for every
+  point of a and the nearest point of a for every point of b, in one pass.
+
+Both compute squared distances block by block as |x|^2 + |y|^2 - 2 x.y with a matrix product, so
+memory stays bounded (about 2^22 distances per block) while the work is O(N^2). That identity loses
+precision when the points lie far from the origin (|x|^2 is large, the difference is small), so both
+functions first move the points so that their mean is at the origin: distances do not change, and a
+cloud at offset 1e4 in float32 gets the same neighbours as at the origin. Coordinates so large that
+squared distances overflow float32 are searched in float64. No gradient flows through the choice of
+neighbours; callers recompute the distances of the chosen pairs when they need them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ._checks import check_shape
+
+__all__ = ["knn_indices", "nearest_indices"]
+
+# Entries of one distance-matrix block (16 MiB in float32).
+_BLOCK = 1 << 22
+# Above this coordinate magnitude (after centring) a float32 search switches to float64: squared
+# distances of float32 overflow at about 1.8e19.
+_FLOAT32_SEARCH_LIMIT = 1e15
+
+
+def _centred(*sets: torch.Tensor) -> list[torch.Tensor]:
+    """The sets moved by their common mean (per batch element); float64 if float32 would overflow."""
+    with torch.no_grad():
+        sets = [s.detach() for s in sets]
+        total = sum(s.shape[1] for s in sets)
+        mean = sum(s.sum(dim=1, keepdim=True, dtype=torch.float64) for s in sets) / max(total, 1)
+        moved = [s - mean.to(s.dtype) for s in sets]
+        if all(s.dtype == torch.float32 for s in sets):
+            extent = max(float(m.abs().amax()) for m in moved)
+            if extent > _FLOAT32_SEARCH_LIMIT:  # NaN compares False: non-finite input stays as it is
+                moved = [s.double() - mean for s in sets]
+        return moved
+
+
+def knn_indices(x: torch.Tensor, k: int, sorted: bool = False) -> torch.Tensor:
+    """Indices of the k nearest neighbours of every point in its own cloud, the point itself included.
+
+    x: (B, N, C) coordinates or features (Euclidean distance in C dimensions). Returns (B, N, k) int64
+    indices into dim 1. Each row contains its own index; with ``sorted=True`` it comes first and the
+    others follow by increasing distance, otherwise the order is unspecified (faster). Example::
+
+        >>> x = torch.tensor([[[0.0, 0, 0], [1, 0, 0], [3, 0, 0]]])
+        >>> knn_indices(x, 2, sorted=True)
+        tensor([[[0, 1], [1, 0], [2, 1]]])
+
+    Rows of non-finite features (a diverged network) still get valid indices, so the NaNs reach the
+    outputs, where training detects them, instead of an indexing error.
+    """
+    check_shape(x, ("B", "N", "C"), "x")
+    batch, n, _ = x.shape
+    if not isinstance(k, int) or not 1 <= k <= n:
+        raise ValueError(f"k must be an integer in [1, N] = [1, {n}], got k = {k!r}")
+    (x,) = _centred(x)
+    out = torch.empty(batch, n, k, dtype=torch.long, device=x.device)
+    # torch.topk on the CPU switches from a selection algorithm to a faster partial sort on rows
+    # of at least 64 k entries; shorter rows are padded with +inf, which is never selected.
+    width = max(n, 64 * k) if x.device.type == "cpu" else n
+    rows = max(1, min(n, _BLOCK // width))
+    block = x.new_full((rows, width), math.inf)
+    sq = (x * x).sum(-1)
+    with torch.no_grad():
+        for b in range(batch):
+            for r0 in range(0, n, rows):
+                r1 = min(n, r0 + rows)
+                d = block[: r1 - r0]
+                # |x_i|^2 is the same for a whole row, so it does not change the ranking and is left out
+                torch.addmm(sq[b].unsqueeze(0), x[b, r0:r1], x[b].T, alpha=-2.0, out=d[:, :n])
+                own = torch.arange(r0, r1, device=x.device)
+                d[own - r0, own] = -math.inf  # the point itself is always one of its neighbours
+                out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=sorted).indices
+    return out.clamp_(max=n - 1)
+
+
+def nearest_indices(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Nearest point of b for every point of a, (B, Na) int64, and of a for every point of b, (B, Nb).
+
+    a (B, Na, C), b (B, Nb, C), both non-empty. One pass over chunks of ``chunk`` points of a
+    (default: about 2^24 distances per chunk). Example::
+
+        >>> a = torch.tensor([[[0.0, 0, 0], [2, 0, 0]]]); b = torch.tensor([[[1.9, 0, 0]]])
+        >>> nearest_indices(a, b)
+        (tensor([[0, 0]]), tensor([[1]]))
+    """
+    check_shape(a, ("B", "Na", "C"), "a")
+    check_shape(b, ("B", "Nb", "C"), "b")
+    if chunk is None:
+        chunk = max(1, (1 << 24) // max(1, a.shape[0] * b.shape[1]))
+    a, b = _centred(a, b)
+    with torch.no_grad():
+        b_sq = b.square().sum(-1)[:, None, :]  # (B, 1, Nb)
+        a_to_b = torch.empty(a.shape[:2], dtype=torch.long, device=a.device)
+        best_b = torch.full(b.shape[:2], math.inf, dtype=a.dtype, device=a.device)
+        b_to_a = torch.zeros(b.shape[:2], dtype=torch.long, device=a.device)
+        for start in range(0, a.shape[1], chunk):  # loop over memory-sized chunks, not over points
+            part = a[:, start : start + chunk]
+            d2 = torch.baddbmm(b_sq + part.square().sum(-1)[..., None], part, b.transpose(1, 2), alpha=-2)
+            a_to_b[:, start : start + chunk] = d2.argmin(dim=2)
+            value, index = d2.min(dim=1)  # best point of this chunk for every point of b
+            better = value < best_b
+            best_b = torch.where(better, value, best_b)
+            b_to_a = torch.where(better, index + start, b_to_a)
+    return a_to_b, b_to_a

@@ -1,0 +1,340 @@
+"""Unusual and hostile inputs: a correct answer or a clear ValueError/TypeError, never a silent wrong one.
+
+The first part keeps one reproduction per reported case; the second runs property-based cases
+(Hypothesis) over the public functions, each checked against a float64 reference where one exists.
+"""
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cuboidlib import io
+from cuboidlib.applications import abstract_shapes, load_trained_model, resolve_checkpoint
+from cuboidlib.checkpoint import load_checkpoint, load_model
+from cuboidlib.cli import main
+from cuboidlib.distance import chamfer_distance
+from cuboidlib.export import write_segmented_point_cloud
+from cuboidlib.fitting import FitConfig, fit_cuboids
+from cuboidlib.metrics import mean_iou, normal_consistency, part_ious
+from cuboidlib.normalization import denormalize, normalize
+from cuboidlib.normals import MAX_POINTS, estimate_normals
+from cuboidlib.shapes import ShapeCollection, make_collection, make_shape
+
+CHECKPOINTS = Path(__file__).resolve().parents[1] / "data_samples" / "checkpoints"
+
+
+@pytest.fixture(scope="module")
+def chair():
+    return make_shape("chair", 2, n_points=512)
+
+
+# ------------------------------------------------------------------------------ magnitudes
+
+
+def test_fit_far_beyond_unit_scale_gives_finite_cuboids_in_the_input_frame(chair):
+    points = torch.as_tensor(chair.points) * 1e30
+    r = fit_cuboids(points, torch.as_tensor(chair.normals), FitConfig(steps=30))
+    c = r.cuboids
+    assert torch.isfinite(c.centers).all() and torch.isfinite(c.half_sizes).all()
+    assert float(c.half_sizes[c.exists].amax()) > 1e28  # in the input's units
+
+
+def test_normalize_and_denormalize_refuse_what_they_cannot_represent():
+    with pytest.raises(ValueError, match="too large for float32"):
+        normalize(torch.tensor([[-3e38, -3e38, 0.0], [3e38, 3e38, 0.0]]))
+    unit = torch.rand(10, 3)
+    with pytest.raises(ValueError, match="scale contains 1 NaN"):
+        denormalize(unit, torch.zeros(3), torch.tensor(float("nan")))
+    with pytest.raises(ValueError, match="overflow float32"):
+        denormalize(unit + 1, torch.zeros(3), torch.tensor(3e38))
+
+
+def test_writers_refuse_coordinates_and_labels_their_format_cannot_hold(tmp_path, chair):
+    big = chair.points.astype(np.float64) * 1e39
+    for suffix in (".ply", ".npy"):
+        with pytest.raises(ValueError, match="do not fit the float32"):
+            io.write_point_cloud(tmp_path / f"big{suffix}", big)
+    io.write_point_cloud(tmp_path / "big.txt", big)  # text keeps them, for other tools; cuboidlib reads float32
+    with pytest.raises(ValueError, match="big.txt: coordinates up to .* exceed the float32 range"):
+        io.read_point_cloud(tmp_path / "big.txt")
+    labels = np.zeros(len(chair.points), np.int64)
+    labels[0] = 2**40
+    with pytest.raises(ValueError, match="labels must lie in"):
+        io.write_point_cloud(tmp_path / "l.ply", chair.points, labels=labels)
+    labels[0] = 2**25  # exact in int32, not in the float32 of .npy
+    io.write_point_cloud(tmp_path / "l.ply", chair.points, labels=labels)
+    assert io.read_point_cloud(tmp_path / "l.ply").labels[0] == 2**25
+    with pytest.raises(ValueError, match="labels must lie in"):
+        io.write_point_cloud(tmp_path / "l.npy", chair.points, chair.normals, labels=labels)
+    with pytest.raises(ValueError, match="whole numbers"):
+        io.write_point_cloud(tmp_path / "f.ply", chair.points, labels=np.full(len(chair.points), 1.5))
+
+
+def test_segmented_cloud_with_huge_labels_is_quick_and_bounded(tmp_path, chair):
+    labels = np.arange(len(chair.points), dtype=np.int64) * 1_000_003
+    start = time.perf_counter()
+    write_segmented_point_cloud(tmp_path / "s.ply", chair.points, labels)
+    assert time.perf_counter() - start < 5.0  # colours only for the labels present, not for 0 .. max
+    labels[0] = 2**31
+    with pytest.raises(ValueError, match=r"integers in \[-1, 2\^31\)"):
+        write_segmented_point_cloud(tmp_path / "s.ply", chair.points, labels)
+
+
+# ------------------------------------------------------------------------------ bounded cost
+
+
+def test_normal_estimation_refuses_clouds_beyond_its_limit():
+    with pytest.raises(ValueError, match=f"at most {MAX_POINTS}: subsample first"):
+        estimate_normals(np.random.default_rng(0).random((MAX_POINTS + 1, 3)))
+
+
+def test_big_clouds_without_normals_load_when_subsampled(tmp_path):
+    pts = np.random.default_rng(0).random((MAX_POINTS + 5, 3))
+    np.savetxt(tmp_path / "big.xyz", pts)
+    with pytest.raises(ValueError, match="subsample first"):
+        io.load_point_cloud(tmp_path / "big.xyz")
+    pc = io.load_point_cloud(tmp_path / "big.xyz", n_points=300)
+    assert pc.points.shape == (300, 3) and np.isfinite(pc.normals).all()
+
+
+def test_fewer_ok_keeps_a_small_cloud_whole(tmp_path, chair):
+    io.write_point_cloud(tmp_path / "c.ply", chair.points, chair.normals)
+    with pytest.raises(ValueError, match="fewer than the 4096 asked for"):
+        io.load_point_cloud(tmp_path / "c.ply", n_points=4096)
+    assert len(io.load_point_cloud(tmp_path / "c.ply", n_points=4096, fewer_ok=True)) == len(chair.points)
+
+
+def test_a_checkpoint_asking_for_absurd_sizes_is_refused_before_allocating(tmp_path):
+    state = load_checkpoint(CHECKPOINTS / "table.pt")
+    state["config"]["model"]["latent_dim"] = 10**9
+    torch.save(state, tmp_path / "huge.pt")
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=r"huge.pt: the stored model config is not usable: .*latent_dim"):
+        load_model(tmp_path / "huge.pt")
+    assert time.perf_counter() - start < 10.0
+    state["config"]["model"].update(latent_dim=8000, global_dim=8000)
+    torch.save(state, tmp_path / "wide.pt")
+    with pytest.raises(ValueError, match="million parameters"):
+        load_model(tmp_path / "wide.pt")
+
+
+# ------------------------------------------------------------------------------ files and the CLI
+
+
+@pytest.mark.parametrize(
+    "header, message",
+    [
+        ("element\n", "malformed PLY header line 'element'"),
+        ("element vertex abc\nproperty float x\n", "PLY element 'vertex' has count 'abc'; expected a whole number"),
+        ("element vertex -3\nproperty float x\n", "PLY element 'vertex' has count '-3'"),
+        ("element vertex 2\nproperty float\n", "malformed PLY header line 'property float'"),
+        ("element vertex 2\nbogus line\n", "unknown PLY header line 'bogus line'"),
+    ],
+)
+def test_malformed_ply_headers_name_the_file_and_the_line(tmp_path, header, message):
+    path = tmp_path / "bad.ply"
+    path.write_text(f"ply\nformat ascii 1.0\n{header}end_header\n")
+    with pytest.raises(ValueError, match=f"bad.ply: {message}"):
+        io.read_point_cloud(path)
+
+
+def test_a_face_index_out_of_range_is_named(tmp_path):
+    path = tmp_path / "faces.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(ValueError, match="faces.ply: a face refers to vertex 7, but the mesh has 3 vertices"):
+        io.load_mesh_as_point_cloud(path, 100)
+
+
+def test_cli_errors_are_one_line_naming_the_problem(tmp_path, capsys):
+    mesh = str(Path(__file__).resolve().parents[1] / "data_samples" / "meshes" / "chair_0.ply")
+    assert main(["abstract", mesh, "--model", "chair", "--device", "bogus", "--out", str(tmp_path / "o")]) == 2
+    assert "device must be 'auto', 'cpu' or 'cuda[:i]', got 'bogus'" in capsys.readouterr().err
+    config = tmp_path / "c.json"
+    config.write_bytes(b"\xff\xfe{}")
+    assert main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 2
+    assert "c.json: not a UTF-8 text file" in capsys.readouterr().err
+
+
+def test_help_with_a_missing_dependency_says_what_to_install(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "cuboidlib.fitting", None)  # as if a dependency of it were missing
+    assert main(["fit", "--help"]) == 1
+    err = capsys.readouterr().err
+    assert "is not installed" in err and "pip install" in err and "Traceback" not in err
+
+
+def test_evaluate_takes_committed_names_and_folders_do_not_shadow_them(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "table").mkdir()  # e.g. an earlier output folder, not a training run
+    (tmp_path / "table" / "result.json").write_text("{}")
+    assert resolve_checkpoint("table") == CHECKPOINTS / "table.pt"
+    assert main(["evaluate", "table", "--split", "val", "--samples", "256"]) == 0
+    assert capsys.readouterr().out.startswith("table: table, val split")
+
+
+# ------------------------------------------------------------------------------ misleading checks
+
+
+def test_half_precision_input_is_fitted_in_float32(chair):
+    r = fit_cuboids(torch.as_tensor(chair.points).half(), torch.as_tensor(chair.normals).half(), FitConfig(steps=20))
+    assert r.cuboids.centers.dtype == torch.float32 and torch.isfinite(r.cuboids.centers).all()
+
+
+def test_identical_points_are_refused_by_fitting():
+    with pytest.raises(ValueError, match="all identical"):
+        fit_cuboids(torch.ones(64, 3), torch.randn(64, 3), FitConfig(steps=5, normalize=False))
+
+
+def test_the_network_refuses_unnormalised_points(chair):
+    model, _, _ = load_trained_model("table")
+    p = torch.as_tensor(chair.points)
+    abstract_shapes(model, p)  # normalised: fine
+    for bad, what in ((p * 100, "diagonal 100"), (p + 5, "centre 8.66")):
+        with pytest.raises(ValueError, match=f"not normalised like the training shapes .*{what}"):
+            abstract_shapes(model, bad)
+
+
+def test_normal_consistency_refuses_zero_normals(chair):
+    p = torch.as_tensor(chair.points)[None]
+    n = torch.as_tensor(chair.normals)[None].clone()
+    n[0, 3] = 0
+    cub = (torch.zeros(1, 1, 3), torch.tensor([[[1.0, 0, 0, 0]]]), torch.full((1, 1, 3), 0.3))
+    with pytest.raises(ValueError, match="1 have zero length"):
+        normal_consistency(p, n, *cub)
+
+
+def test_iou_refuses_labels_outside_num_parts():
+    gt = torch.tensor([[0, 1, 2]])
+    with pytest.raises(ValueError, match="part_labels holds label 2, but num_parts = 2"):
+        mean_iou(gt, gt, 2)
+    with pytest.raises(ValueError, match="num_parts must be a positive integer"):
+        mean_iou(gt, gt, 0)
+    with pytest.raises(ValueError, match="true part labels are >= 0"):
+        part_ious(gt, gt - 1, 3)
+
+
+def test_a_corrupted_cache_entry_is_regenerated(tmp_path):
+    good = make_collection("table", 3, n_points=64, cache_dir=tmp_path)
+    (entry,) = tmp_path.glob("*.npz")
+    broken = ShapeCollection(good.category, good.points.copy(), good.normals, good.labels, good.structures,
+                             good.structure_ids, good.seed)
+    broken.points[0, 0, 0] = np.nan
+    broken.save(entry)
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        ShapeCollection.load(entry)
+    again = make_collection("table", 3, n_points=64, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.points, good.points)
+    ShapeCollection.load(entry)  # rewritten
+
+
+# ------------------------------------------------------------------------------ property-based cases
+
+FLOATS = st.sampled_from([torch.float32, torch.float64])
+MAGNITUDES = st.sampled_from([1e-30, 1e-6, 1.0, 1e3, 1e8, 1e30])
+OFFSETS = st.sampled_from([0.0, -1.0, 1e4, 1e12])
+HYPOTHESIS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _cloud(seed, n, magnitude, offset, dtype):
+    g = torch.Generator().manual_seed(seed)
+    return (torch.rand(1, n, 3, generator=g, dtype=torch.float64) * magnitude + offset).to(dtype)
+
+
+@HYPOTHESIS
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 50), magnitude=MAGNITUDES, offset=OFFSETS, dtype=FLOATS)
+def test_normalize_round_trip_property(seed, n, magnitude, offset, dtype):
+    p = _cloud(seed, n, magnitude, offset, dtype)[0]
+    wide = p.double()
+    spread = float((wide.amax(0) - wide.amin(0)).norm())
+    try:
+        q, center, scale = normalize(p)
+    except ValueError as exc:  # only a cloud without extent (at this precision) may be refused
+        assert "all identical" in str(exc)
+        assert spread <= 1e-9 * max(1.0, float(wide.abs().max()))
+        return
+    assert torch.isfinite(q).all() and q.dtype == dtype
+    assert float((q.amax(0) - q.amin(0)).norm()) == pytest.approx(1.0, rel=1e-4)
+    back = denormalize(q, center, scale)
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    assert float((back.double() - wide).abs().max()) <= tol * max(spread, float(wide.abs().max()))
+
+
+@HYPOTHESIS
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 40), m=st.integers(1, 40), magnitude=MAGNITUDES,
+       offset=OFFSETS, dtype=FLOATS)
+def test_chamfer_distance_property(seed, n, m, magnitude, offset, dtype):
+    a, b = _cloud(seed, n, magnitude, offset, dtype), _cloud(seed + 1, m, magnitude, offset, dtype)
+    d = (a.double()[0, :, None] - b.double()[0, None]).square().sum(-1)
+    want = float(d.amin(1).mean() + d.amin(0).mean())
+    try:
+        got = chamfer_distance(a, b)
+    except ValueError as exc:  # only when squared distances exceed the dtype's range
+        assert "overflow" in str(exc) and float(d.amax()) > torch.finfo(dtype).max / 4
+        return
+    assert torch.isfinite(got).all()
+    # float32 cannot hold squared distances below its smallest normal number (~1e-38)
+    floor = torch.finfo(dtype).tiny
+    assert float(got) == pytest.approx(want, rel=1e-3, abs=max(1e-6 * magnitude**2, floor))
+
+
+@HYPOTHESIS
+@given(seed=st.integers(0, 2**16), n=st.integers(0, 20), where=st.sampled_from(["a", "b"]),
+       bad=st.sampled_from([math.nan, math.inf, -math.inf, "empty"]))
+def test_chamfer_distance_refuses_bad_clouds_property(seed, n, where, bad):
+    a, b = _cloud(seed, max(n, 1), 1.0, 0.0, torch.float32), _cloud(seed + 1, 5, 1.0, 0.0, torch.float32)
+    if bad == "empty":
+        a = a[:, :0]
+    else:
+        a[0, n // 2, 1] = bad
+    args = (a, b) if where == "a" else (b, a)
+    with pytest.raises(ValueError, match="empty|NaN or infinite"):
+        chamfer_distance(*args)
+
+
+@HYPOTHESIS
+@given(seed=st.integers(0, 2**16), shapes=st.integers(1, 4), n=st.integers(1, 30), parts=st.integers(1, 6))
+def test_mean_iou_property(seed, shapes, n, parts):
+    rng = np.random.default_rng(seed)
+    gt = rng.integers(0, parts, (shapes, n))
+    pred = rng.integers(-1, parts, (shapes, n))
+    ious = []
+    for label in range(parts):  # the float64 reference: IoU over all points, mean over labels present
+        inter, union = ((pred == label) & (gt == label)).sum(), ((pred == label) | (gt == label)).sum()
+        if union:
+            ious.append(inter / union)
+    assert mean_iou(torch.as_tensor(pred), torch.as_tensor(gt), parts) == pytest.approx(np.mean(ious), abs=1e-12)
+    with pytest.raises(ValueError, match="but num_parts"):
+        mean_iou(torch.as_tensor(pred), torch.as_tensor(gt + parts), parts)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 60), suffix=st.sampled_from([".ply", ".txt", ".npy"]),
+       magnitude=st.sampled_from([1e-3, 1.0, 1e6]), offset=st.sampled_from([0.0, 1e4]),
+       with_labels=st.booleans())
+def test_point_cloud_files_round_trip_property(tmp_path_factory, seed, n, suffix, magnitude, offset, with_labels):
+    rng = np.random.default_rng(seed)
+    points = rng.random((n, 3)) * magnitude + offset
+    normals = rng.normal(size=(n, 3)) + 0.1
+    labels = rng.integers(0, 50, n) if with_labels else None
+    path = tmp_path_factory.mktemp("rt") / f"cloud{suffix}"
+    try:
+        io.write_point_cloud(path, points, normals, labels)
+    except ValueError as exc:
+        assert "identical" in str(exc) and np.ptp(points.astype(np.float32), axis=0).max() == 0
+        return
+    try:
+        pc = io.read_point_cloud(path)
+    except ValueError as exc:  # float32 storage may merge all points of a tiny cloud far from 0
+        assert "identical" in str(exc)
+        return
+    np.testing.assert_allclose(pc.points, points, rtol=2e-6 if suffix != ".txt" else 1e-6, atol=1e-6 * magnitude)
+    if with_labels:
+        np.testing.assert_array_equal(pc.labels, labels)
