@@ -107,6 +107,8 @@ def fit_cluster_boxes(points, normals, num_boxes: int, normal_weight: float = 0.
         raise ValueError(f"normals must have the shape of points {tuple(p.shape)}, got {tuple(n.shape)}")
     check_finite(p, "points")
     check_finite(n, "normals")
+    if len(p) == 0 or float((p.amax(0) - p.amin(0)).max()) == 0.0:
+        raise ValueError(f"points: {len(p)} point(s), all identical or none; boxes need a shape with extent")
     g = torch.Generator().manual_seed(seed)
     labels, _ = kmeans(torch.cat([p, normal_weight * n], dim=1), num_boxes, iterations, generator=g)
     used = torch.unique(labels)

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 from cuboidlib import io
 from cuboidlib.applications import abstract_shapes, load_trained_model, resolve_checkpoint
+from cuboidlib.baseline import fit_cluster_boxes
 from cuboidlib.checkpoint import load_checkpoint, load_model
 from cuboidlib.cli import main
 from cuboidlib.distance import chamfer_distance
@@ -188,9 +189,11 @@ def test_half_precision_input_is_fitted_in_float32(chair):
     assert r.cuboids.centers.dtype == torch.float32 and torch.isfinite(r.cuboids.centers).all()
 
 
-def test_identical_points_are_refused_by_fitting():
+def test_identical_points_are_refused_by_fitting_and_the_baseline():
     with pytest.raises(ValueError, match="all identical"):
         fit_cuboids(torch.ones(64, 3), torch.randn(64, 3), FitConfig(steps=5, normalize=False))
+    with pytest.raises(ValueError, match="all identical"):
+        fit_cluster_boxes(torch.ones(64, 3), torch.randn(64, 3), 12)
 
 
 def test_the_network_refuses_unnormalised_points(chair):
