@@ -81,7 +81,7 @@ def _add_train_command(sub) -> None:
         "be partial), then the flags below, then --set. Writes OUT/config.json, OUT/last.pt (full state, "
         "for --resume), OUT/best.pt (lowest validation loss) and OUT/log.csv. --resume continues OUT/last.pt "
         "exactly (only budget and bookkeeping fields may change). Under torchrun the same command trains "
-        "with DistributedDataParallel: torchrun --nproc_per_node=2 -m cuboidlib.train --config cfg.json --out DIR",
+        "with DistributedDataParallel: torchrun --nproc_per_node=2 -m cuboidlib train --config cfg.json --out DIR",
     )
     p.add_argument("--config", help="JSON config file (TrainConfig fields)")
     p.add_argument("--out", required=True, help="run folder (last.pt, best.pt, config.json, log.csv)")
@@ -394,25 +394,31 @@ def _check_input(path: str) -> None:
         raise UserError(f"{file}: is a folder; give a mesh or point cloud file")
 
 
-def _load_shape(path: str, n_points: int, seed: int):
-    """A mesh (sampled with n_points) or a point cloud (subsampled to at most n_points), normalised."""
+def _check_shape_file(path: str) -> None:
+    """Fail fast (before torch is imported) on a missing input or one of an unknown type."""
     from pathlib import Path
 
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES, load_point_cloud
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES
 
     _check_input(path)
     file = Path(path)
     if file.suffix.lower() not in set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES):
         raise UserError(f"{file}: unsupported file type {file.suffix or '(no suffix)'!r}; expected a mesh "
                         f"({' '.join(MESH_SUFFIXES)}) or a point cloud ({' '.join(POINT_CLOUD_SUFFIXES)})")
-    return load_point_cloud(file, n_points, seed, fewer_ok=True)
 
 
-def _check_part_names(args, pc) -> None:
-    names = args.part_names
-    if names and pc.labels is not None and len(pc.labels) and int(pc.labels.max()) >= len(names):
-        raise UserError(f"{args.shape}: has part labels up to {int(pc.labels.max())} but --part-names gives only "
-                        f"{len(names)} names")
+def _load_shape(path: str, n_points: int, seed: int):
+    """A mesh (sampled with n_points) or a point cloud (subsampled to at most n_points), normalised."""
+    from .io import load_point_cloud
+
+    _check_shape_file(path)
+    return load_point_cloud(path, n_points, seed, fewer_ok=True)
+
+
+def _model_points(state: dict) -> int:
+    """Points per shape the checkpoint's network was trained with (2048 if it does not say)."""
+    value = state.get("config", {}).get("n_points")
+    return value if isinstance(value, int) and value > 0 else 2048
 
 
 def _part_names(text: str) -> tuple[str, ...]:
@@ -422,41 +428,18 @@ def _part_names(text: str) -> tuple[str, ...]:
     return names
 
 
-def _finish_result(args, cuboids, pc, segmentation, method: dict, start: float, bar) -> int:
-    """Chamfer distance, part labels, files and summary of fit / abstract (cuboids normalised, (1, M))."""
+def _save_and_report(args, result, start: float, bar) -> int:
+    """Write the result of fit / abstract (cuboidlib.abstraction) and print its summary."""
     import time
-    from pathlib import Path
 
-    import torch
-
-    from .export import AbstractionResult, write_result
-    from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
-
-    convention = ChamferConvention()
-    points = torch.as_tensor(pc.points, dtype=cuboids.centers.dtype)[None]
-    chamfer = float(cuboid_chamfer_distance(
-        points, cuboids.centers, cuboids.quaternions, cuboids.half_sizes, cuboids.exists, convention,
-        torch.Generator().manual_seed(args.seed),
-    )[0])
-    names = args.part_names
-    part_labels = None
-    if pc.labels is not None and len(pc.labels) and pc.labels.min() >= 0:
-        num_parts = max(int(pc.labels.max()) + 1, len(names) if names else 0)
-        part_labels = transfer_part_labels(segmentation[None], torch.as_tensor(pc.labels)[None],
-                                           cuboids.num_cuboids, num_parts).numpy()
-    result = AbstractionResult(
-        cuboids, pc.center, pc.scale, pc.points, pc.normals, segmentation.numpy(), part_labels, names, chamfer,
-        convention, source=Path(args.shape).name, method=method,
-    )
     bar.set_description("writing files")
-    written = write_result(args.out, result, Path(args.shape).stem, args.normalized, args.mesh_format)
+    written = result.save(args.out, formats=args.mesh_format, normalized=args.normalized)
     bar.update(1)
     bar.close()  # before the summary is printed (closing again on leaving the caller's "with" is harmless)
     if not args.quiet:
-        used = int(cuboids.exists.sum())
-        how = convention.describe().split(": ", 1)[1]
-        print(f"{used} cuboid{'' if used == 1 else 's'} used of {cuboids.num_cuboids} | Chamfer distance "
-              f"{chamfer:.4g} ({how}; on the normalised shape) | {time.perf_counter() - start:.1f} s")
+        used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
+        print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
+              f"{result.chamfer:.4g} ({how}; on the normalised shape) | {time.perf_counter() - start:.1f} s")
         print("wrote " + ", ".join(str(p) for p in written.values()))
     return 0
 
@@ -491,32 +474,21 @@ def _cmd_fit(args) -> int:
 
     start = time.perf_counter()
     _check_out_dir(args.out)
-    _check_input(args.shape)
+    _check_shape_file(args.shape)
 
     from tqdm import tqdm
 
-    from .fitting import FitConfig, fit_cuboids
+    from .abstraction import abstract
+    from .fitting import FitConfig
 
     for name in ("cuboids", "steps", "restarts"):
         if isinstance(getattr(args, name), _FitDefault):
             setattr(args, name, getattr(args, name).value())
-    pc = _load_shape(args.shape, args.points, args.seed)
-    _check_part_names(args, pc)
-    if len(pc) < args.cuboids:
-        raise UserError(f"{args.shape}: has {len(pc)} points, fewer than --cuboids {args.cuboids}")
     config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
-    fit = fit_cuboids(pc.points, pc.normals, config, progress=not args.quiet)
-    method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": args.cuboids,
-              "steps": args.steps, "restarts": args.restarts, "seed": args.seed, "points": len(pc),
-              "converged": bool(fit.converged[0])}
-    with tqdm(total=1, desc="scoring", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
-        return _finish_result(args, fit.cuboids, pc, fit.labels[0].cpu(), method, start, bar)
-
-
-def _model_points(state: dict) -> int:
-    """Points per shape the checkpoint's network was trained with (2048 if it does not say)."""
-    value = state.get("config", {}).get("n_points")
-    return value if isinstance(value, int) and value > 0 else 2048
+    result = abstract(args.shape, None, n_points=args.points, seed=args.seed, fit_config=config,
+                      part_names=args.part_names, progress=not args.quiet)
+    with tqdm(total=1, desc="writing", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
+        return _save_and_report(args, result, start, bar)
 
 
 def _add_abstract_command(sub) -> None:
@@ -544,25 +516,16 @@ def _cmd_abstract(args) -> int:
 
     from tqdm import tqdm
 
-    from .applications import abstract_shapes, load_trained_model
-    from .train import resolve_device
+    from .abstraction import abstract
 
     start = time.perf_counter()
     _check_out_dir(args.out)
-    _check_input(args.shape)
-    model, state, path = load_trained_model(args.model, resolve_device(args.device))
-    pc = _load_shape(args.shape, args.points or _model_points(state), args.seed)
-    _check_part_names(args, pc)
-    if len(pc) <= model.config.k:
-        raise UserError(f"{args.shape}: has {len(pc)} points; the network needs more than k = {model.config.k}")
-    trained_centroids = bool(state["config"].get("loss", {}).get("centers_from_allocation", False))
-    centroids = trained_centroids if args.centers == "auto" else args.centers == "allocation"
-    method = {"name": "network", "checkpoint": str(path), "step": state.get("step"), "threshold": args.threshold,
-              "centers": "allocation" if centroids else "predicted", "points": len(pc)}
+    _check_shape_file(args.shape)
     with tqdm(total=2, desc="running the network", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
-        out = abstract_shapes(model, pc.points, args.threshold, centers_from_allocation=centroids)
+        result = abstract(args.shape, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
+                          centers=args.centers, part_names=args.part_names, device=args.device)
         bar.update(1)
-        return _finish_result(args, out.cuboids.to(device="cpu"), pc, out.labels[0].cpu(), method, start, bar)
+        return _save_and_report(args, result, start, bar)
 
 
 def _stems(prefix: str, count: int) -> list[str]:
@@ -574,15 +537,15 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict]) -> list
     """Write every decoded shape (normalised frame, no points) as JSON and meshes; returns the paths."""
     from tqdm import tqdm
 
-    from .export import AbstractionResult, write_result
+    from .abstraction import Abstraction
 
     cuboids = decoded.cuboids.to(device="cpu")
     written = []
     for k in tqdm(range(len(stems)), desc="writing shapes", disable=args.quiet, leave=False, delay=_BAR_DELAY):
         one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
                             cuboids.exists[k:k + 1], validate=False)
-        result = AbstractionResult(one, method=methods[k])
-        written += list(write_result(args.out, result, stems[k], True, args.mesh_format).values())
+        result = Abstraction(one, method=methods[k])
+        written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
     return written
 
 

@@ -9,8 +9,9 @@ uniform scale, so a cuboid goes back to the input's original coordinates with
 
     centre_original = centre * scale + center,   size_original = size * scale,   rotation unchanged
 
-(:func:`denormalize_cuboids`, inverse :func:`normalize_cuboids`). :func:`write_result` writes in the
-original coordinates unless asked for normalised output; the JSON says which it holds.
+(:func:`denormalize_cuboids`, inverse :func:`normalize_cuboids`).
+:meth:`cuboidlib.abstraction.Abstraction.save` writes in the original coordinates unless asked for
+normalised output; the JSON says which it holds.
 
 JSON schema (``format`` "cuboidlib-cuboids", ``version`` 1)
 -------------------------------------------------------------
@@ -77,7 +78,6 @@ import json
 import math
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -105,9 +105,6 @@ __all__ = [
     "cuboid_scene",
     "write_cuboid_mesh",
     "write_segmented_point_cloud",
-    "AbstractionResult",
-    "write_result",
-    "result_files",
     "write_view_html",
 ]
 
@@ -560,87 +557,6 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass
-class AbstractionResult:
-    """The cuboid abstraction of ONE shape, in NORMALISED coordinates, ready to be written.
-
-    cuboids: :class:`~cuboidlib.geometry.Cuboids` (1, M, ...) with ``exists``.
-    center (3,), scale: the input's normalisation (original = normalized * scale + center).
-    points (N, 3), normals (N, 3), labels (N,) cuboid index per point: the segmented input (or None).
-    part_labels (M,): semantic part label of each cuboid, -1 unknown (or None); part_names their names.
-    chamfer, chamfer_convention: Chamfer distance on the normalised shape and how it was measured.
-    source: the input file name; method: a dict of JSON types saying how the cuboids were made.
-    """
-
-    cuboids: Cuboids
-    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    scale: float = 1.0
-    points: np.ndarray | None = None
-    normals: np.ndarray | None = None
-    labels: np.ndarray | None = None
-    part_labels: np.ndarray | None = None
-    part_names: tuple[str, ...] | None = None
-    chamfer: float | None = None
-    chamfer_convention: ChamferConvention | None = None
-    source: str | None = None
-    method: dict | None = None
-
-
-def result_files(stem: str, mesh_formats=("glb",), points: bool = True) -> dict[str, str]:
-    """File names :func:`write_result` uses: ``{stem}.json``, ``{stem}.{glb|obj|ply}``,
-    ``{stem}.mtl`` with an OBJ, and ``{stem}_segmentation.ply`` for the points."""
-    names = {"json": f"{stem}.json"}
-    for fmt in mesh_formats:
-        if fmt not in MESH_FORMATS:
-            raise ValueError(f"unknown mesh format {fmt!r}; expected some of {MESH_FORMATS}")
-        names[fmt] = f"{stem}.{fmt}"
-        if fmt == "obj":
-            names["mtl"] = f"{stem}.mtl"
-    if points:
-        names["points"] = f"{stem}_segmentation.ply"
-    return names
-
-
-def write_result(
-    out_dir: str | os.PathLike,
-    result: AbstractionResult,
-    stem: str = "cuboids",
-    normalized: bool = False,
-    mesh_formats=("glb",),
-) -> dict[str, Path]:
-    """Write a result: JSON, the meshes in ``mesh_formats`` and the segmented points (if any).
-
-    Everything is written in the input's original coordinates, or in the normalised ones with
-    ``normalized=True`` (the JSON records which, and the normalisation either way). File names
-    come from :func:`result_files`. Returns ``{kind: path}``.
-    """
-    if not isinstance(result, AbstractionResult):
-        raise TypeError(f"result must be an AbstractionResult, got {type(result).__name__}")
-    if result.cuboids.batch_size != 1:
-        raise ValueError(f"result.cuboids must hold ONE shape, got a batch of {result.cuboids.batch_size}")
-    out = Path(out_dir)
-    names = result_files(stem, mesh_formats, result.points is not None)
-    cuboids = result.cuboids if normalized else denormalize_cuboids(result.cuboids, result.center, result.scale)
-    written = {}
-    if result.points is not None:
-        points = _numpy(result.points).astype(np.float64)
-        if not normalized:
-            points = points * result.scale + np.asarray(result.center, dtype=np.float64)
-        labels = result.labels if result.labels is not None else np.full(len(points), -1)
-        written["points"] = write_segmented_point_cloud(out / names["points"], points, labels, result.normals)
-    written["json"] = write_cuboids_json(
-        out / names["json"], cuboids, coordinates="normalized" if normalized else "original",
-        center=result.center, scale=result.scale, source=result.source, method=result.method,
-        part_labels=result.part_labels, part_names=result.part_names, chamfer=result.chamfer,
-        chamfer_convention=result.chamfer_convention, points_file=names.get("points"),
-    )
-    for fmt in mesh_formats:
-        written[fmt] = write_cuboid_mesh(out / names[fmt], cuboids)
-        if fmt == "obj":
-            written["mtl"] = out / names["mtl"]
-    return written
-
-
 # ----------------------------------------------------------------------------------------------
 # HTML view
 # ----------------------------------------------------------------------------------------------
@@ -684,7 +600,7 @@ def write_view_html(
 ) -> Path:
     """A self-contained HTML page (plotly.js embedded, opens offline in any browser) of results.
 
-    result: a result JSON file, or a folder holding one or more (as written by :func:`write_result`
+    result: a result JSON file, or a folder holding one or more (as written by :meth:`cuboidlib.abstraction.Abstraction.save`
     or ``cuboidlib fit / abstract / generate / interpolate``). One result is drawn with
     :func:`cuboidlib.viz.plot_cuboids_plotly` (points coloured by cuboid, translucent cuboids, a
     legend to toggle each cuboid), several as a grid (:func:`cuboidlib.viz.plot_cuboids_plotly_grid`).

@@ -807,9 +807,3 @@ class Trainer:
                        f"best validation loss {self.best_val:.5f} at step {self.best_step}")
         return TrainResult(self.step, self.step // self.steps_per_epoch, stopped, self.best_val, self.best_step,
                            self.elapsed + seconds, self.last_terms, str(self.out_dir))
-
-
-if __name__ == "__main__":  # ``python -m cuboidlib.train ...`` (e.g. under torchrun) = ``cuboidlib train ...``
-    from .cli import main
-
-    sys.exit(main(["train", *sys.argv[1:]]))

@@ -14,9 +14,9 @@ import pytest
 import torch
 import trimesh
 
+from cuboidlib.abstraction import Abstraction
 from cuboidlib.export import (
     JSON_FORMAT,
-    AbstractionResult,
     cuboid_node_name,
     denormalize_cuboids,
     normalize_cuboids,
@@ -24,7 +24,6 @@ from cuboidlib.export import (
     read_cuboids_json,
     write_cuboid_mesh,
     write_cuboids_json,
-    write_result,
     write_segmented_point_cloud,
     write_view_html,
 )
@@ -268,15 +267,15 @@ def test_segmented_point_cloud_reads_back_with_labels_normals_and_palette_colour
 
 
 @pytest.fixture()
-def result(cuboids) -> AbstractionResult:
+def result(cuboids) -> Abstraction:
     g = torch.Generator().manual_seed(3)
     points = (torch.rand(30, 3, generator=g) - 0.5).numpy()
-    return AbstractionResult(cuboids, center=np.array([10.0, 0.0, -5.0]), scale=2.0, points=points,
+    return Abstraction(cuboids, center=np.array([10.0, 0.0, -5.0]), scale=2.0, points=points,
                              labels=np.arange(30) % 2, source="thing.obj", method={"name": "test"})
 
 
 def test_result_is_written_in_original_coordinates_by_default(tmp_path, result):
-    files = write_result(tmp_path, result, stem="thing", mesh_formats=("glb", "obj", "ply"))
+    files = result.save(tmp_path, "thing", formats=("glb", "obj", "ply"))
     assert {k: p.name for k, p in files.items()} == {
         "points": "thing_segmentation.ply", "json": "thing.json", "glb": "thing.glb", "obj": "thing.obj",
         "mtl": "thing.mtl", "ply": "thing.ply",
@@ -289,7 +288,7 @@ def test_result_is_written_in_original_coordinates_by_default(tmp_path, result):
     np.testing.assert_allclose(cloud.points, result.points * 2.0 + result.center, atol=1e-5)
     mesh = trimesh.load(files["ply"], process=False)
     assert mesh.bounds[0, 0] > 8  # the meshes moved with the cuboids (x around 10 +- 1.2)
-    normalized = write_result(tmp_path / "n", result, stem="thing", normalized=True)
+    normalized = result.save(tmp_path / "n", "thing", normalized=True)
     read_n, meta_n = read_cuboids_json(normalized["json"])
     assert meta_n["coordinates"] == "normalized"
     _assert_same(read_n, result.cuboids)
@@ -298,15 +297,15 @@ def test_result_is_written_in_original_coordinates_by_default(tmp_path, result):
 
 def test_result_rejects_batches_and_unknown_formats(tmp_path, result, cuboids):
     with pytest.raises(ValueError, match="unknown mesh format"):
-        write_result(tmp_path, result, mesh_formats=("stl",))
+        result.save(tmp_path, formats=("stl",))
     two = Cuboids(cuboids.centers.expand(2, 4, 3), cuboids.quaternions.expand(2, 4, 4),
                   cuboids.half_sizes.expand(2, 4, 3))
     with pytest.raises(ValueError, match="ONE shape"):
-        write_result(tmp_path, AbstractionResult(two))
+        Abstraction(two)
 
 
 def test_view_html_is_self_contained_and_shows_every_cuboid(tmp_path, result):
-    write_result(tmp_path / "one", result, stem="thing")
+    result.save(tmp_path / "one", "thing")
     page = write_view_html(tmp_path / "one")
     assert page == tmp_path / "one" / "view.html"
     html = page.read_text()
@@ -321,8 +320,7 @@ def test_view_html_is_self_contained_and_shows_every_cuboid(tmp_path, result):
 
 def test_view_of_a_folder_of_results_draws_a_grid(tmp_path, cuboids):
     for k in range(3):
-        write_result(tmp_path, AbstractionResult(cuboids, method={"name": "generate"}), stem=f"generated_{k:02d}",
-                     normalized=True)
+        Abstraction(cuboids, method={"name": "generate"}).save(tmp_path, f"generated_{k:02d}", normalized=True)
     (tmp_path / "notes.json").write_text('{"something": "else"}')  # other JSON files are skipped
     html = write_view_html(tmp_path, tmp_path / "page.html").read_text()
     assert '"scene3"' in html and '"scene4"' not in html

@@ -396,7 +396,7 @@ def _free_port() -> int:
 @pytest.mark.parametrize("centroids", [False, True], ids=["predicted centres", "centroid centres"])
 def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, centroids):
     # Two processes started with the variables torchrun sets (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR/PORT);
-    # `torchrun --nproc_per_node=2 -m cuboidlib.train ...` does the same through the command line. With centroid
+    # `torchrun --nproc_per_node=2 -m cuboidlib train ...` does the same through the command line. With centroid
     # centres (the committed recipe) the translation head receives no gradient, which DDP must be told.
     config, _ = tiny
     loss = LossConfig(centers_from_allocation=centroids).to_dict()

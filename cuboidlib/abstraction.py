@@ -1,0 +1,320 @@
+"""One shape's cuboid abstraction (:class:`Abstraction`) and the one pipeline that makes it (:func:`abstract`).
+
+Three lines take a mesh or point cloud file, in any units, to cuboids written next to it::
+
+    import cuboidlib
+    result = cuboidlib.abstract("my_chair.obj", model="chair")   # a committed network; model=None fits
+    result.save("out")                                           # out/my_chair.json, .glb, _segmentation.ply
+
+The pipeline is the same for every way of making cuboids: read and normalise the shape
+(:func:`cuboidlib.io.load_point_cloud`: bounding box centred, diagonal 1, normals estimated when
+missing), make cuboids and a segmentation (a trained network, Sec. 3, or the per-shape fit of
+:mod:`cuboidlib.fitting`), measure the Chamfer distance on the normalised shape, and, when the input
+has part labels, give every cuboid the part most of its points carry (Sec. 4.2). The result keeps
+the normalised cuboids and the normalisation, so it can be written in the input's own coordinates
+(the default) or in the normalised ones. The command-line tool's ``fit`` and ``abstract`` are this
+function and :meth:`Abstraction.save`.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .export import (
+    MESH_FORMATS,
+    cuboids_from_dict,
+    cuboids_to_dict,
+    denormalize_cuboids,
+    normalize_cuboids,
+    write_cuboid_mesh,
+    write_cuboids_json,
+    write_segmented_point_cloud,
+)
+from .geometry import Cuboids, quaternion_to_rotation_matrix
+from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
+
+__all__ = ["Abstraction", "abstract", "result_files"]
+
+
+@dataclass
+class Abstraction:
+    """The cuboid abstraction of ONE shape. The cuboids are stored in NORMALISED coordinates.
+
+    cuboids: :class:`~cuboidlib.geometry.Cuboids` (1, M, ...) with ``exists``, normalised frame.
+    center (3,), scale: the input's normalisation (original = normalized * scale + center).
+    points (N, 3), normals (N, 3): the normalised input (or None); labels (N,): cuboid index of every
+    point, the segmentation (or None).
+    part_labels (M,): semantic part label of each cuboid, -1 unknown (or None); part_names their names.
+    chamfer, chamfer_convention: Chamfer distance on the normalised shape and how it was measured.
+    source: the input file name; method: a dict of JSON types saying how the cuboids were made.
+
+    Example::
+
+        >>> r = abstract("chair.ply", model="chair")
+        >>> r.num_existing, r.numpy()["sizes"].shape      # sizes in the file's units
+        (8, (8, 3))
+    """
+
+    cuboids: Cuboids
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    scale: float = 1.0
+    points: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    part_labels: np.ndarray | None = None
+    part_names: tuple[str, ...] | None = None
+    chamfer: float | None = None
+    chamfer_convention: ChamferConvention | None = None
+    source: str | None = None
+    method: dict | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.cuboids, Cuboids) or self.cuboids.batch_size != 1:
+            raise ValueError("Abstraction.cuboids must be a Cuboids batch holding ONE shape (1, M, ...)")
+
+    @property
+    def num_existing(self) -> int:
+        """How many of the M cuboids exist."""
+        return int(self.cuboids.exists.sum())
+
+    def cuboids_in(self, coordinates: str = "original") -> Cuboids:
+        """The cuboids (1, M, ...) in the input's ``"original"`` coordinates or the ``"normalized"`` ones."""
+        if coordinates == "normalized":
+            return self.cuboids
+        if coordinates != "original":
+            raise ValueError(f"coordinates must be 'original' or 'normalized', got {coordinates!r}")
+        return denormalize_cuboids(self.cuboids, self.center, self.scale)
+
+    def numpy(self, coordinates: str = "original") -> dict[str, np.ndarray]:
+        """The EXISTING cuboids as arrays: ``centers`` (K, 3), ``rotations`` (K, 3, 3) (columns are the
+        cuboid's axes), ``sizes`` (K, 3) (full edge lengths), ``index`` (K,) their slot m, and
+        ``part_labels`` (K,) (-1 unknown); K = :attr:`num_existing`."""
+        c = self.cuboids_in(coordinates)
+        keep = c.exists[0].cpu()
+        rotations = quaternion_to_rotation_matrix(c.quaternions[0].detach().cpu().double(), validate=False)
+        labels = np.full(c.num_cuboids, -1) if self.part_labels is None else np.asarray(self.part_labels)
+        return {
+            "centers": c.centers[0].detach().cpu().double()[keep].numpy(),
+            "rotations": rotations[keep].numpy(),
+            "sizes": (2 * c.half_sizes[0].detach().cpu().double()[keep]).numpy(),
+            "index": np.nonzero(keep.numpy())[0],
+            "part_labels": labels[keep.numpy()],
+        }
+
+    def to_dict(self, coordinates: str = "original", points_file: str | None = None) -> dict:
+        """The JSON document of the result (schema: :mod:`cuboidlib.export`), cuboids in ``coordinates``."""
+        return cuboids_to_dict(
+            self.cuboids_in(coordinates), coordinates=coordinates, center=self.center, scale=self.scale,
+            source=self.source, method=self.method, part_labels=self.part_labels, part_names=self.part_names,
+            chamfer=self.chamfer, chamfer_convention=self.chamfer_convention, points_file=points_file,
+        )
+
+    @classmethod
+    def from_dict(cls, doc: dict, where: str = "cuboid JSON") -> "Abstraction":
+        """Inverse of :meth:`to_dict` (the points are not part of the document: None)."""
+        cuboids, meta = cuboids_from_dict(doc, where)
+        center, scale = np.asarray(meta["normalization"]["center"]), float(meta["normalization"]["scale"])
+        if meta["coordinates"] == "original":
+            cuboids = normalize_cuboids(cuboids, center, scale)
+        labels = np.asarray(meta["part_labels"], dtype=np.int64)
+        names = meta.get("part_names")
+        return cls(cuboids, center, scale, part_labels=None if (labels < 0).all() else labels,
+                   part_names=None if names is None else tuple(names), source=meta.get("source"),
+                   method=meta.get("method"), chamfer=(meta.get("chamfer") or {}).get("value"))
+
+    def save(self, folder: str | os.PathLike, stem: str | None = None, formats=("glb",),
+             normalized: bool = False) -> dict[str, Path]:
+        """Write ``folder/STEM.json``, the cuboid meshes in ``formats`` (any of glb, obj, ply) and, when
+        the result has points, ``folder/STEM_segmentation.ply`` (points coloured and labelled by cuboid).
+
+        Everything is in the input's original coordinates, or in the normalised ones with
+        ``normalized=True`` (the JSON records which, and the normalisation either way). STEM defaults
+        to the source file's name (else "cuboids"). Returns ``{kind: path}``.
+        """
+        if stem is None:
+            stem = Path(self.source).stem if self.source else "cuboids"
+        out = Path(folder)
+        names = result_files(stem, formats, self.points is not None)
+        coordinates = "normalized" if normalized else "original"
+        cuboids = self.cuboids_in(coordinates)
+        written = {}
+        if self.points is not None:
+            points = np.asarray(self.points, dtype=np.float64)
+            if not normalized:
+                points = points * self.scale + np.asarray(self.center, dtype=np.float64)
+            labels = self.labels if self.labels is not None else np.full(len(points), -1)
+            written["points"] = write_segmented_point_cloud(out / names["points"], points, labels, self.normals)
+        written["json"] = write_cuboids_json(
+            out / names["json"], cuboids, coordinates=coordinates, center=self.center, scale=self.scale,
+            source=self.source, method=self.method, part_labels=self.part_labels, part_names=self.part_names,
+            chamfer=self.chamfer, chamfer_convention=self.chamfer_convention, points_file=names.get("points"),
+        )
+        for fmt in formats:
+            written[fmt] = write_cuboid_mesh(out / names[fmt], cuboids)
+            if fmt == "obj":
+                written["mtl"] = out / names["mtl"]
+        return written
+
+    def plot(self, max_points: int = 4000, coordinates: str = "original", **kwargs):
+        """An interactive plotly figure: the points coloured by cuboid and the translucent cuboids."""
+        from .viz import plot_cuboids_plotly
+
+        points = np.zeros((0, 3)) if self.points is None else np.asarray(self.points, dtype=np.float64)
+        if coordinates == "original" and len(points):
+            points = points * self.scale + np.asarray(self.center, dtype=np.float64)
+        title = kwargs.pop("title", f"{self.source or 'shape'}: {self.num_existing} of {self.cuboids.num_cuboids} "
+                           "cuboids")
+        return plot_cuboids_plotly(points, self.labels, self.cuboids_in(coordinates), max_points=max_points,
+                                   title=title, **kwargs)
+
+
+def result_files(stem: str, formats=("glb",), points: bool = True) -> dict[str, str]:
+    """File names :meth:`Abstraction.save` uses: ``{stem}.json``, ``{stem}.{glb|obj|ply}``,
+    ``{stem}.mtl`` with an OBJ, and ``{stem}_segmentation.ply`` for the points."""
+    names = {"json": f"{stem}.json"}
+    for fmt in formats:
+        if fmt not in MESH_FORMATS:
+            raise ValueError(f"unknown mesh format {fmt!r}; expected some of {MESH_FORMATS}")
+        names[fmt] = f"{stem}.{fmt}"
+        if fmt == "obj":
+            names["mtl"] = f"{stem}.mtl"
+    if points:
+        names["points"] = f"{stem}_segmentation.ply"
+    return names
+
+
+# ----------------------------------------------------------------------------------------------
+# The pipeline
+# ----------------------------------------------------------------------------------------------
+
+
+def _as_point_cloud(shape, n_points: int | None, seed: int):
+    """A normalised PointCloud with normals from a file path, a PointCloud or an (N, 3) / (N, 6) array."""
+    from .io import PointCloud, load_point_cloud, validate_point_cloud
+    from .normalization import normalize
+    from .normals import estimate_normals
+
+    if isinstance(shape, (str, os.PathLike)):
+        return load_point_cloud(shape, n_points, seed, fewer_ok=True)
+    if isinstance(shape, PointCloud):
+        pc = PointCloud(shape.points, shape.normals, shape.labels, source=shape.source)
+    else:
+        array = shape.detach().cpu().numpy() if isinstance(shape, torch.Tensor) else np.asarray(shape)
+        if array.ndim != 2 or array.shape[1] not in (3, 6):
+            raise ValueError(f"shape must be a file path, a PointCloud or an (N, 3) / (N, 6) array of points "
+                             f"[and normals], got an array of shape {array.shape}")
+        array = array.astype(np.float64)
+        pc = PointCloud(array[:, :3], array[:, 3:] if array.shape[1] == 6 else None)
+    validate_point_cloud(np.asarray(pc.points), pc.normals, pc.labels, pc.source or "shape")
+    if n_points is not None and n_points < len(pc):
+        keep = np.sort(np.random.default_rng(seed).choice(len(pc), n_points, replace=False))
+        pc.points = pc.points[keep]
+        pc.normals = None if pc.normals is None else pc.normals[keep]
+        pc.labels = None if pc.labels is None else pc.labels[keep]
+    points, center, scale = normalize(np.asarray(pc.points, dtype=np.float64))
+    pc.points, pc.center, pc.scale = points.astype(np.float32), center, float(scale)
+    if pc.normals is None:
+        pc.normals = estimate_normals(pc.points, k=min(16, len(pc))).astype(np.float32)
+    else:
+        n = np.asarray(pc.normals, dtype=np.float64)
+        pc.normals = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+    return pc
+
+
+def _check_part_names(pc, part_names, source) -> None:
+    if part_names is not None and pc.labels is not None and len(pc.labels) and int(pc.labels.max()) >= len(part_names):
+        raise ValueError(f"{source or 'shape'}: has part labels up to {int(pc.labels.max())} but part_names gives "
+                         f"only {len(part_names)} names")
+
+
+def abstract(
+    shape,
+    model=None,
+    *,
+    n_points: int | None = None,
+    seed: int = 0,
+    threshold: float = 0.5,
+    centers: str = "auto",
+    fit_config=None,
+    part_names=None,
+    device: str = "cpu",
+    progress: bool = False,
+) -> Abstraction:
+    """Cuboid abstraction and segmentation of one shape, in its own coordinates.
+
+    Args:
+        shape: a mesh or point cloud file (any format :func:`cuboidlib.io.load_point_cloud` reads), a
+            :class:`~cuboidlib.io.PointCloud`, or an (N, 3) / (N, 6) array of points [and normals],
+            in any units and position; it is normalised first, and normals are estimated when missing.
+        model: a trained network: a committed name ("chair", "table", "airplane", "animal"), a
+            checkpoint file or run folder, or a loaded ``CuboidAbstractionNet``; None fits cuboids to
+            this shape alone (:func:`cuboidlib.fitting.fit_cuboids`, no network, no part consistency).
+        n_points: points sampled on a mesh or kept of a larger cloud (default: the network's training
+            size, 2048 for the fit).
+        seed: seed of the sampling, the fit and the Chamfer samples.
+        threshold: existence probability above which a network's cuboid exists.
+        centers: network cuboid centres: "predicted", "allocation" (centroids of the points) or "auto"
+            (what the network was trained with).
+        fit_config: a :class:`~cuboidlib.fitting.FitConfig` for ``model=None`` (default: the course's).
+        part_names: names of the input's part labels, for the JSON.
+        device: "cpu", "cuda[:i]" or "auto".
+        progress: show the fit's progress bar.
+
+    Returns an :class:`Abstraction` (cuboids normalised, with the normalisation to write them back).
+    """
+    from .applications import abstract_shapes, load_trained_model
+    from .fitting import FitConfig, fit_cuboids
+    from .model import CuboidAbstractionNet
+    from .train import resolve_device
+
+    if centers not in ("auto", "predicted", "allocation"):
+        raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
+    source = Path(shape).name if isinstance(shape, (str, os.PathLike)) else getattr(shape, "source", None)
+    if model is None:
+        config = fit_config if fit_config is not None else FitConfig(seed=seed)
+        pc = _as_point_cloud(shape, 2048 if n_points is None else n_points, seed)
+        _check_part_names(pc, part_names, source)
+        if len(pc) < config.num_cuboids:
+            raise ValueError(f"{source or 'shape'}: has {len(pc)} points, fewer than the {config.num_cuboids} cuboids")
+        fit = fit_cuboids(pc.points, pc.normals, config, progress=progress)
+        cuboids, segmentation = fit.cuboids, fit.labels[0].cpu()
+        method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": config.num_cuboids,
+                  "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
+                  "converged": bool(fit.converged[0])}
+    else:
+        if isinstance(model, CuboidAbstractionNet):
+            net, state, path = model, {}, None
+        else:
+            net, state, path = load_trained_model(model, resolve_device(device))
+        trained_points = state.get("config", {}).get("n_points")
+        pc = _as_point_cloud(shape, n_points or (trained_points if isinstance(trained_points, int) else 2048), seed)
+        _check_part_names(pc, part_names, source)
+        if len(pc) <= net.config.k:
+            raise ValueError(f"{source or 'shape'}: has {len(pc)} points; the network needs more than "
+                             f"k = {net.config.k}")
+        trained_centroids = bool(state.get("config", {}).get("loss", {}).get("centers_from_allocation", False))
+        centroids = trained_centroids if centers == "auto" else centers == "allocation"
+        out = abstract_shapes(net, pc.points, threshold, centers_from_allocation=centroids)
+        cuboids, segmentation = out.cuboids.to(device="cpu"), out.labels[0].cpu()
+        method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
+                  "threshold": threshold, "centers": "allocation" if centroids else "predicted", "points": len(pc)}
+    convention = ChamferConvention()
+    points = torch.as_tensor(pc.points, dtype=cuboids.centers.dtype)[None]
+    chamfer = float(cuboid_chamfer_distance(
+        points, cuboids.centers, cuboids.quaternions, cuboids.half_sizes, cuboids.exists, convention,
+        torch.Generator().manual_seed(seed),
+    )[0])
+    part_labels = None
+    if pc.labels is not None and len(pc.labels) and pc.labels.min() >= 0:
+        num_parts = max(int(pc.labels.max()) + 1, len(part_names) if part_names else 0)
+        part_labels = transfer_part_labels(segmentation[None], torch.as_tensor(pc.labels)[None],
+                                           cuboids.num_cuboids, num_parts).numpy()
+    return Abstraction(
+        cuboids, pc.center, pc.scale, pc.points, pc.normals, segmentation.numpy(), part_labels,
+        None if part_names is None else tuple(part_names), chamfer, convention, source=source, method=method,
+    )

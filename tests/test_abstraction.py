@@ -1,0 +1,124 @@
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import cuboidlib
+from cuboidlib.abstraction import Abstraction
+from cuboidlib.export import read_cuboids_json
+from cuboidlib.fitting import FitConfig
+from cuboidlib.io import read_point_cloud, write_point_cloud
+from cuboidlib.shapes import PART_NAMES, make_shape
+
+MESHES = Path(__file__).resolve().parents[1] / "data_samples" / "meshes"
+
+
+@pytest.fixture(scope="module")
+def table_cloud(tmp_path_factory):
+    """A table as a point cloud file in millimetres, moved away from the origin, with part labels."""
+    s = make_shape("table", 3, n_points=1024)
+    path = tmp_path_factory.mktemp("in") / "table.ply"
+    write_point_cloud(path, s.points * 1000.0 + np.array([500.0, 0.0, -200.0]), s.normals, s.labels)
+    return path, s
+
+
+def test_three_lines_abstract_a_file_and_write_it_in_its_own_units(tmp_path, table_cloud):
+    path, shape = table_cloud
+    result = cuboidlib.abstract(path, model="table")
+    files = result.save(tmp_path)
+    assert {k: p.name for k, p in files.items()} == {
+        "points": "table_segmentation.ply", "json": "table.json", "glb": "table.glb"}
+    cuboids, meta = read_cuboids_json(files["json"])
+    assert meta["coordinates"] == "original" and meta["method"]["name"] == "network"
+    assert meta["num_existing"] == result.num_existing >= 2
+    # the cuboids are in millimetres around the input: their centres lie inside its bounding box
+    lo, hi = shape.points.min(0) * 1000 + [500, 0, -200], shape.points.max(0) * 1000 + [500, 0, -200]
+    centers = cuboids.centers[0][cuboids.exists[0]].numpy()
+    assert ((centers > lo - 1) & (centers < hi + 1)).all()
+    np.testing.assert_allclose(result.numpy()["centers"], centers, rtol=1e-5, atol=1e-3)
+    cloud = read_point_cloud(files["points"])
+    assert len(cloud) == 1024 and set(np.unique(cloud.labels)) <= set(result.numpy()["index"].tolist())
+
+
+def test_units_and_position_do_not_change_the_abstraction(table_cloud):
+    path, shape = table_cloud
+    in_file = cuboidlib.abstract(path, model="table")
+    as_array = cuboidlib.abstract(np.concatenate([shape.points, shape.normals], axis=1), model="table")
+    torch.testing.assert_close(in_file.cuboids.centers, as_array.cuboids.centers, atol=1e-4, rtol=1e-4)
+    assert np.array_equal(in_file.labels, as_array.labels)
+    assert in_file.scale == pytest.approx(1000.0 * as_array.scale, rel=1e-6)
+
+
+def test_part_labels_of_the_input_name_the_cuboids(table_cloud):
+    path, _ = table_cloud
+    result = cuboidlib.abstract(path, model="table", part_names=PART_NAMES["table"])
+    doc = result.to_dict()
+    named = {c["part_name"] for c in doc["cuboids"] if c["exists"]}
+    assert named <= {"top", "leg", None} and "top" in named
+    with pytest.raises(ValueError, match="part labels up to 1 but part_names gives only 1"):
+        cuboidlib.abstract(path, model="table", part_names=("top",))
+
+
+def test_without_a_model_the_shape_is_fitted_alone():
+    s = make_shape("chair", 0, n_points=600)
+    result = cuboidlib.abstract(s.points, model=None, fit_config=FitConfig(steps=40, seed=1))
+    assert result.method["name"] == "fit" and result.method["steps"] == 40
+    assert 2 <= result.num_existing <= 16 and result.chamfer < 0.02
+    assert result.normals is not None  # estimated, since the array had none
+
+
+def test_dict_round_trip_and_arrays(table_cloud):
+    path, _ = table_cloud
+    result = cuboidlib.abstract(path, model="table", part_names=PART_NAMES["table"])
+    doc = json.loads(json.dumps(result.to_dict()))
+    back = Abstraction.from_dict(doc)
+    torch.testing.assert_close(back.cuboids.centers, result.cuboids.centers.double(), atol=1e-6, rtol=1e-6)
+    assert back.part_names == PART_NAMES["table"] and back.chamfer == pytest.approx(result.chamfer)
+    arrays = result.numpy("normalized")
+    k = result.num_existing
+    assert arrays["centers"].shape == (k, 3) and arrays["rotations"].shape == (k, 3, 3)
+    np.testing.assert_allclose(arrays["rotations"] @ arrays["rotations"].transpose(0, 2, 1), np.eye(3)[None].repeat(k, 0),
+                               atol=1e-5)
+    fig = result.plot()
+    assert len(fig.data) >= k
+
+
+def test_bad_shapes_are_refused():
+    with pytest.raises(ValueError, match=r"\(N, 3\) / \(N, 6\) array"):
+        cuboidlib.abstract(np.zeros((10, 4)), model="table")
+    with pytest.raises(ValueError, match="centers must be"):
+        cuboidlib.abstract(np.random.default_rng(0).random((100, 3)), model="table", centers="middle")
+    with pytest.raises(FileNotFoundError):
+        cuboidlib.abstract("no_such_file.ply", model="table")
+
+
+def test_python_dash_m_runs_the_command_line_tool():
+    done = subprocess.run([sys.executable, "-m", "cuboidlib", "--version"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip().endswith(cuboidlib.__version__)
+
+
+def test_importing_cuboidlib_is_light_and_offers_the_public_names():
+    code = ("import sys, cuboidlib; assert 'torch' not in sys.modules; "
+            "print(sorted(n for n in cuboidlib.__all__ if n != '__version__'))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    for name in ast.literal_eval(done.stdout):
+        assert getattr(cuboidlib, name) is not None
+
+
+def test_the_readme_example_runs_as_written(tmp_path, monkeypatch):
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme[readme.index("## Your own shapes, in three lines"):]
+    code = section[section.index("```python\n") + 10: section.index("```\n", section.index("```python"))]
+    (tmp_path / "data_samples").symlink_to(MESHES.parent)
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert namespace["result"].num_existing >= 2
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "chair_0.glb", "chair_0.json", "chair_0_segmentation.ply"]
