@@ -482,11 +482,13 @@ def adjusted_rand_index(clusters, truth) -> float:
 
 def checkpoint_dir() -> Path:
     """The folder of committed checkpoints: ``$CUBOIDLIB_CHECKPOINTS`` if set, else the
-    ``data_samples/checkpoints`` folder of the source tree cuboidlib runs from."""
+    ``data_samples/checkpoints`` folder of the source tree cuboidlib runs from, else (an installed
+    wheel) the copy shipped inside the package, ``cuboidlib/networks``."""
     env = os.environ.get(CHECKPOINT_DIR_ENV)
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "data_samples" / "checkpoints"
+    source_tree = Path(__file__).resolve().parent.parent / "data_samples" / "checkpoints"
+    return source_tree if source_tree.is_dir() else Path(__file__).resolve().parent / "networks"
 
 
 def committed_checkpoints() -> dict[str, Path]:

@@ -1,5 +1,6 @@
 import ast
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -122,3 +123,29 @@ def test_the_readme_example_runs_as_written(tmp_path, monkeypatch):
     assert namespace["result"].num_existing >= 2
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
         "chair_0.glb", "chair_0.json", "chair_0_segmentation.ply"]
+
+
+def test_the_built_wheel_ships_the_committed_networks_and_loads_them(tmp_path):
+    import zipfile
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-m", "pip", "wheel", str(root), "--no-deps", "--no-build-isolation",
+                           "-w", str(tmp_path / "wheel"), "-q"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (wheel,) = (tmp_path / "wheel").glob("cuboidlib-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for category in ("chair", "table", "airplane", "animal"):
+        assert {f"cuboidlib/networks/{category}.pt", f"cuboidlib/networks/{category}.json",
+                f"cuboidlib/networks/configs/{category}.json"} <= names
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    # import the unpacked wheel, not this checkout (whose editable install hooks into sys.meta_path)
+    code = (f"import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in repr(f)]; "
+            f"sys.path.insert(0, {str(site)!r}); "
+            "from cuboidlib.applications import checkpoint_dir, load_trained_model; "
+            "model, state, path = load_trained_model('chair'); print(path)")
+    env = {k: v for k, v in os.environ.items() if k != "CUBOIDLIB_CHECKPOINTS"}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                         env=env)
+    assert run.returncode == 0, run.stderr
+    assert Path(run.stdout.strip()) == site / "cuboidlib" / "networks" / "chair.pt"
