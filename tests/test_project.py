@@ -116,6 +116,18 @@ def test_notebook_has_the_course_form(nb_path):
 
 
 @pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_names_the_installed_kernel_as_jupyterlab_does(nb_path):
+    # ipykernel installs the kernel "python3" with the display name "Python 3 (ipykernel)"; a notebook that
+    # stores another name is marked as changed when JupyterLab opens it, and a save leaves a diff
+    from jupyter_client.kernelspec import KernelSpecManager
+
+    spec = KernelSpecManager().get_kernel_spec("python3")
+    stored = json.loads(nb_path.read_text())["metadata"]["kernelspec"]
+    assert stored == {"display_name": spec.display_name, "language": spec.language, "name": "python3"}, (
+        f"{nb_path.name}: kernelspec {stored} differs from the installed kernel's")
+
+
+@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
 def test_notebook_stays_small(nb_path):
     assert nb_path.stat().st_size < 5 * 2**20, f"{nb_path.name} is larger than 5 MiB"
 
