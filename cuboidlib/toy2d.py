@@ -492,6 +492,54 @@ class FitResult(NamedTuple):
         return Rectangles(self.centers, self.angles, self.half_sizes)
 
 
+def _check_fit_inputs(points, normals, K, distance, assignment, steps, init_size, non_negative: dict):
+    """The checks of :func:`fit_rectangles`; returns points (B, N, 2) and normals (or None) as tensors."""
+    if distance not in ("nearest", "normal"):
+        raise ValueError(f'distance must be "nearest" or "normal", got {distance!r}')
+    if assignment not in ("min", "soft"):
+        raise ValueError(f'assignment must be "min" or "soft", got {assignment!r}')
+    if distance == "normal" and normals is None:
+        raise ValueError('normals (B, N, 2) are required for distance="normal"')
+    points = as_float_tensor(points, "points")
+    named = {"points": check_shape(points, ("B", "N", 2), "points")}
+    if normals is not None:
+        normals = as_float_tensor(normals, "normals", dtype=points.dtype, device=points.device)
+        named["normals"] = check_shape(normals, ("B", "N", 2), "normals")
+    sizes: dict = {}
+    check_same_leading(named, sizes, "points and normals")
+    if sizes["N"] == 0:
+        raise ValueError("points is empty (N = 0); at least one point is needed")
+    check_finite(points, "points")
+    if normals is not None:
+        check_finite(normals, "normals")
+        check_unit_vectors(normals, "normals")
+    if not isinstance(K, int) or K < 1:
+        raise ValueError(f"K must be a positive integer (number of rectangles), got {K!r}")
+    if not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    for name, value in non_negative.items():
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a finite non-negative number, got {value}")
+    low, high = init_size
+    if not 0 < low <= high:
+        raise ValueError(f"init_size must be (low, high) with 0 < low <= high, got {init_size}")
+    return points, normals
+
+
+def _random_start(points: torch.Tensor, K: int, init_size, gen: torch.Generator):
+    """Random rectangles for every shape: centres (B, K, 2) uniform in the points' bounding box, angles
+    (B, K) uniform in [0, pi/2), log half sizes (B, K, 2) from sizes uniform in ``init_size`` (fractions of
+    the larger half extent of the bounding box)."""
+    B, dtype, device = points.shape[0], points.dtype, points.device
+    low, high = init_size
+    lo, hi = points.amin(dim=1), points.amax(dim=1)  # (B, 2)
+    scale = ((hi - lo) / 2).amax(dim=-1).clamp_min(1e-6)  # (B,)
+    centers = lo[:, None, :] + (hi - lo)[:, None, :] * torch.rand(B, K, 2, generator=gen, dtype=dtype, device=device)
+    angles = torch.rand(B, K, generator=gen, dtype=dtype, device=device) * (math.pi / 2)
+    sizes0 = low + (high - low) * torch.rand(B, K, 2, generator=gen, dtype=dtype, device=device)
+    return centers, angles, torch.log(sizes0 * scale[:, None, None])
+
+
 def fit_rectangles(
     points: torch.Tensor,
     normals: torch.Tensor | None,
@@ -531,48 +579,13 @@ def fit_rectangles(
     Defaults: compactness_weight = 0.03 suits shapes about 2 units across (distances scale with
     the size squared, the compactness term does not); sigma_s = 0.05 as in the paper.
     """
-    if distance not in ("nearest", "normal"):
-        raise ValueError(f'distance must be "nearest" or "normal", got {distance!r}')
-    if assignment not in ("min", "soft"):
-        raise ValueError(f'assignment must be "min" or "soft", got {assignment!r}')
-    if distance == "normal" and normals is None:
-        raise ValueError('normals (B, N, 2) are required for distance="normal"')
-    points = as_float_tensor(points, "points")
-    named = {"points": check_shape(points, ("B", "N", 2), "points")}
-    if normals is not None:
-        normals = as_float_tensor(normals, "normals", dtype=points.dtype, device=points.device)
-        named["normals"] = check_shape(normals, ("B", "N", 2), "normals")
-    sizes: dict = {}
-    check_same_leading(named, sizes, "points and normals")
-    if sizes["N"] == 0:
-        raise ValueError("points is empty (N = 0); at least one point is needed")
-    check_finite(points, "points")
-    if normals is not None:
-        check_finite(normals, "normals")
-        check_unit_vectors(normals, "normals")
-    if not isinstance(K, int) or K < 1:
-        raise ValueError(f"K must be a positive integer (number of rectangles), got {K!r}")
-    if not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
-    non_negative = {
+    points, normals = _check_fit_inputs(points, normals, K, distance, assignment, steps, init_size, {
         "compactness_weight": compactness_weight, "sigma_s": sigma_s, "lr": lr, "logit_lr": logit_lr, "bias_lr": bias_lr
-    }
-    for name, value in non_negative.items():
-        if not (math.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a finite non-negative number, got {value}")
-    low, high = init_size
-    if not 0 < low <= high:
-        raise ValueError(f"init_size must be (low, high) with 0 < low <= high, got {init_size}")
-    B, N = sizes["B"], sizes["N"]
+    })
+    B = points.shape[0]
     dtype, device = points.dtype, points.device
     gen = torch.Generator(device=device).manual_seed(seed)
-
-    lo, hi = points.amin(dim=1), points.amax(dim=1)  # (B, 2)
-    scale = ((hi - lo) / 2).amax(dim=-1).clamp_min(1e-6)  # (B,)
-    centers = lo[:, None, :] + (hi - lo)[:, None, :] * torch.rand(B, K, 2, generator=gen, dtype=dtype, device=device)
-    angles = torch.rand(B, K, generator=gen, dtype=dtype, device=device) * (math.pi / 2)
-    sizes0 = low + (high - low) * torch.rand(B, K, 2, generator=gen, dtype=dtype, device=device)
-    log_half = torch.log(sizes0 * scale[:, None, None])
+    centers, angles, log_half = _random_start(points, K, init_size, gen)
     params = [centers.requires_grad_(), angles.requires_grad_(), log_half.requires_grad_()]
 
     def distances(sampled: bool = True) -> torch.Tensor:
@@ -596,21 +609,24 @@ def fit_rectangles(
     optimizer = torch.optim.Adam(groups)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda i: 0.5 * (1 + math.cos(math.pi * i / steps)))
 
-    history = torch.empty(steps, B, dtype=dtype)
-    for i in range(steps):
+    def objective() -> torch.Tensor:  # (B,): Eq. (4) (+ lambda_1 Eq. (6)), or the min-assignment loss
         d = distances()
         if assignment == "min":
-            objective = d.min(dim=-1).values.mean(dim=1)
-        else:
-            W = torch.softmax(logits + bias, dim=1).transpose(1, 2)
-            objective = (W * d).sum(dim=-1).mean(dim=1)
-            if compactness_weight > 0:
-                objective = objective + compactness_weight * compactness_loss(allocation_portions(W))
+            return d.min(dim=-1).values.mean(dim=1)
+        W = torch.softmax(logits + bias, dim=1).transpose(1, 2)
+        value = (W * d).sum(dim=-1).mean(dim=1)
+        if compactness_weight > 0:
+            value = value + compactness_weight * compactness_loss(allocation_portions(W))
+        return value
+
+    history = torch.empty(steps, B, dtype=dtype)
+    for i in range(steps):
+        value = objective()
         optimizer.zero_grad(set_to_none=True)
-        objective.sum().backward()
+        value.sum().backward()
         optimizer.step()
         schedule.step()
-        history[i] = objective.detach().cpu()
+        history[i] = value.detach().cpu()
 
     with torch.no_grad():
         if assignment == "min":
