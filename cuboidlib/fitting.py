@@ -40,7 +40,7 @@ keeps lambda_1 = 0.1 but uses the averaged form by default (``compactness_averag
 effective weight 0.1 / M^2 on Eq. 6); ``compactness_average=False`` gives the paper's literal form.
 
 The losses are not convex: a fit can stop in a local minimum (for example one cuboid spanning two
-legs of a table). A larger M (the default 16, one of the values of the paper's Table 7) gives k-means
+legs of a table). A larger M (the default 16, one of the values of the paper's Table 6) gives k-means
 smaller clusters to start from, and ``restarts`` keeps the best of several initialisations.
 
 By default every shape is first normalised (bounding box centred at the origin, diagonal 1, see

@@ -68,7 +68,7 @@ def _check_portions(w, name: str = "w") -> torch.Tensor:
 # L_recons = (1/N) sum_n sum_m W_{m,n} d(p_n, C_m): the distance of every point to every cuboid, weighted by
 # the soft allocation of the segmentation branch. d is the normal-aware distance of Eq. (5)
 # (cuboidlib.distance.point_to_cuboid_distance); the ablations swap it for the nearest-surface distance
-# (Table 5) or swap W for a hard nearest-cuboid allocation (P2C-Dis, Table 4).
+# (Table 4) or swap W for a hard nearest-cuboid allocation (P2C-Dis, Table 3).
 # ---------------------------------------------------------------------------------------------------------
 
 
@@ -92,7 +92,7 @@ def reconstruction_loss(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
 def nearest_cuboid_allocation(d: torch.Tensor) -> torch.Tensor:
     """Hard allocation of every point to its closest cuboid, W_{m,n} = [m = argmin_k d(p_n, C_k)].
 
-    The P2C-Dis variant of Table 4, which removes the segmentation branch. d: (B, N, M) distances.
+    The P2C-Dis variant of Table 3, which removes the segmentation branch. d: (B, N, M) distances.
     Returns (B, N, M) one-hot float (no gradient flows through the choice).
     """
     d = as_float_tensor(d, "d")
@@ -112,10 +112,10 @@ def allocation_weighted_centers(W: torch.Tensor, points: torch.Tensor) -> torch.
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Cuboid compactness loss: Sec. 3.4.2, Eq. (6), Fig. 8
+# Cuboid compactness loss: Sec. 3.4.2, Eq. (6), Fig. 5
 #
 # compactness_loss is the paper's loss, an L0.5 penalty on the portions w. l1_penalty and l2_penalty are the
-# two penalties the paper compares it with in Fig. 8: on the simplex sum_m w_m = 1 the L1 norm is constant
+# two penalties the paper compares it with in Fig. 5: on the simplex sum_m w_m = 1 the L1 norm is constant
 # (its gradient with respect to the softmax logits is zero), and the squared L2 norm is smallest at uniform
 # portions (it spreads points over all cuboids). Only the concave L0.5 penalty pushes w towards a vertex,
 # i.e. towards using few cuboids.
@@ -125,7 +125,7 @@ def allocation_weighted_centers(W: torch.Tensor, points: torch.Tensor) -> torch.
 def compactness_loss(w: torch.Tensor, eps_sps: float = 0.01, average_over_cuboids: bool = False) -> torch.Tensor:
     """Cuboid compactness loss L_compact = (sum_m sqrt(w_m + eps_sps))^2, Eq. (6), Sec. 3.4.2.
 
-    This is the L0.5 penalty of the paper's Fig. 8 (the squared L0.5 "norm" of w, shifted by eps_sps).
+    This is the L0.5 penalty of the paper's Fig. 5 (the squared L0.5 "norm" of w, shifted by eps_sps).
     It is concave in w, so on the simplex sum_m w_m = 1 its minima are the vertices: minimising it
     drives the allocation towards few cuboids.
 
@@ -151,7 +151,7 @@ def compactness_loss(w: torch.Tensor, eps_sps: float = 0.01, average_over_cuboid
 
 
 def l1_penalty(w: torch.Tensor) -> torch.Tensor:
-    """L1 norm of the portions, sum_m |w_m|: the penalty the paper rejects (Sec. 3.4.2, Fig. 8).
+    """L1 norm of the portions, sum_m |w_m|: the penalty the paper rejects (Sec. 3.4.2, Fig. 5).
 
     w: (..., M) non-negative allocation portions. Returns (...), e.g. (B, M) -> (B,), (M,) -> ().
     On the simplex sum_m w_m = 1 it is identically 1. With w = softmax(z) its gradient with respect to
@@ -164,7 +164,7 @@ def l1_penalty(w: torch.Tensor) -> torch.Tensor:
 
 
 def l2_penalty(w: torch.Tensor) -> torch.Tensor:
-    """Squared L2 norm of the portions, sum_m w_m^2: a comparison penalty of Sec. 3.4.2 and Fig. 8.
+    """Squared L2 norm of the portions, sum_m w_m^2: a comparison penalty of Sec. 3.4.2 and Fig. 5.
 
     w: (..., M) non-negative allocation portions. Returns (...), e.g. (B, M) -> (B,), (M,) -> ().
     It is convex; on the simplex its minimum is 1/M, at the uniform portions w_m = 1/M, so minimising it
@@ -253,8 +253,8 @@ class LossConfig:
     (lambda_3) = 6e-6, sigma_s = 0.05, eps_sps = 0.01, eps_ext = 0.05.
 
     Ablations (Sec. 4.3):
-      distance: "normal" (Eq. 5, default), "nearest_surface" (Table 5's "Distance" column) or
-        "chamfer" (Chamfer-Dis of Table 4: bidirectional Chamfer between the points and samples on
+      distance: "normal" (Eq. 5, default), "nearest_surface" (Table 4's "Distance" column) or
+        "chamfer" (Chamfer-Dis of Table 3: bidirectional Chamfer between the points and samples on
         the cuboids as L_recons, with the hard nearest-cuboid allocation for the other terms);
       allocation: "segmentation" (W from the network, P2C-Seg, default) or "nearest_cuboid"
         (P2C-Dis: W = one-hot of the closest cuboid under the chosen distance).

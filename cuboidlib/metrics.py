@@ -150,7 +150,7 @@ def normal_consistency(
     n_samples: int = 4096,
     generator: torch.Generator | None = None,
 ) -> torch.Tensor:
-    """Normal consistency between a point cloud and cuboids (Table 5): mean_n |n_n . n(q_n)|.
+    """Normal consistency between a point cloud and cuboids (Table 4): mean_n |n_n . n(q_n)|.
 
     points, normals (B, N, 3); cuboids (B, M, ...), exists optional (B, M). For each input point,
     q_n is the nearest of ``n_samples`` points sampled uniformly on the existing cuboids' surfaces
@@ -176,7 +176,7 @@ def normal_consistency(
 
 
 def number_of_existing_cuboids(exists) -> torch.Tensor:
-    """N_AC of Tables 6-7: the average number of existing cuboids over shapes. exists: (B, M) bool."""
+    """N_AC of Tables 5-6: the average number of existing cuboids over shapes. exists: (B, M) bool."""
     exists = torch.as_tensor(exists)
     if exists.dim() != 2:
         raise ValueError(f"exists must have shape (B, M), got {tuple(exists.shape)}")

@@ -1,4 +1,4 @@
-"""Figures of cuboid abstractions: points coloured by cuboid, translucent cuboids (Figs. 1, 5, 6, 9).
+"""Figures of cuboid abstractions: points coloured by cuboid, translucent cuboids (Figs. 1, 6, 7, 9).
 
 Colours follow one rule everywhere in the course: cuboid index m is drawn with ``PALETTE[m]``
 (:func:`cuboid_color`), in every shape, lesson and export, like the paper's figures where "the same

@@ -18,7 +18,7 @@ table; this module does everything else, the same way for all of them:
   The model is selected on the validation split (``best.pt``) and scored on the test split.
 * **Quick scale** (``--quick``): a tiny network, 12 shapes, an eighth of the points (at least 32),
   2 steps, one seed: every script runs end to end in seconds (for tests; the numbers mean nothing).
-* **Input noise** (:func:`add_noise`, Table 5): seeded isotropic Gaussian jitter of the positions.
+* **Input noise** (:func:`add_noise`, Table 4): seeded isotropic Gaussian jitter of the positions.
 * **Running** (:func:`run_all`): independent runs go to ``--jobs`` worker processes (default 2),
   each with one torch thread, longest runs first; a run that fails is recorded with its error and
   the others go on.
@@ -26,7 +26,7 @@ table; this module does everything else, the same way for all of them:
   (Chamfer distance, normal consistency, mIoU by label transfer, N_AC), optionally against the
   clean shapes (noise), a denser sampling of the same shapes (point density), with the k-means
   baseline (:func:`cuboidlib.evaluation.evaluate_baseline`), or with a nearest-cuboid segmentation
-  for the variants without a segmentation branch (Table 4); per-shape fitting
+  for the variants without a segmentation branch (Table 3); per-shape fitting
   (:mod:`cuboidlib.fitting`) is scored the same way.
 * **Results** (:func:`write_results`): ``experiments/results/<name>.json`` with the command, the
   git commit, the machine, the wall time, the settings, the config and the metrics of every run
@@ -207,12 +207,12 @@ class Scale:
 
 
 # ----------------------------------------------------------------------------------------------
-# Input noise (Table 5)
+# Input noise (Table 4)
 # ----------------------------------------------------------------------------------------------
 
 
 def add_noise(points: torch.Tensor, sigma_n: float, seed: int) -> torch.Tensor:
-    """Input noise of Table 5: ``points + sigma_n * e`` with e ~ N(0, I_3) drawn independently per point.
+    """Input noise of Table 4: ``points + sigma_n * e`` with e ~ N(0, I_3) drawn independently per point.
 
     The jitter is isotropic: a uniformly random direction with a chi(3)-distributed length, each
     coordinate with standard deviation ``sigma_n`` (variance sigma_n^2, as in the paper). It comes
@@ -343,7 +343,7 @@ def _test_shapes(config: TrainConfig, options: dict) -> tuple[ShapeSet, ShapeSet
 def nearest_cuboid_segmentation(shapes: ShapeSet, pred: CuboidPredictions, distance: str) -> torch.Tensor:
     """(S, N) segment of every point = its nearest EXISTING cuboid under ``distance`` ("normal": Eq. (5)
     with sigma_s = 0; "nearest_surface"), the allocation of the variants without a segmentation branch
-    (P2C-Dis, Chamfer-Dis of Table 4)."""
+    (P2C-Dis, Chamfer-Dis of Table 3)."""
     cuboids = (pred.centers, pred.quaternions, pred.half_sizes)
     if distance == "normal":
         d = point_to_cuboid_distance(shapes.points, shapes.normals, *cuboids, sigma_s=0.0)

@@ -1,6 +1,6 @@
 """Tests of experiments/: the shared runner and the configurations of the per-table scripts.
 
-The scripts live outside the package (``python experiments/table6_compactness.py``) and import their
+The scripts live outside the package (``python experiments/table5_compactness.py``) and import their
 sibling ``runner``; the tests import them the same way, with ``experiments/`` on the path.
 """
 
@@ -26,16 +26,16 @@ import fig11_point_density as fig11  # noqa: E402
 import paper_vs_code  # noqa: E402
 import runner  # noqa: E402
 import table1_2_comparison as table12  # noqa: E402
-import table4_supervision as table4  # noqa: E402
-import table5_distance as table5  # noqa: E402
-import table6_compactness as table6  # noqa: E402
-import table7_num_cuboids as table7  # noqa: E402
+import table3_supervision as table3  # noqa: E402
+import table4_distance as table4  # noqa: E402
+import table5_compactness as table5  # noqa: E402
+import table6_num_cuboids as table6  # noqa: E402
 
 from cuboidlib.evaluation import CuboidPredictions  # noqa: E402
 from cuboidlib.losses import LossConfig  # noqa: E402
 from cuboidlib.train import ShapeSet, TrainConfig  # noqa: E402
 
-SCRIPTS = (table4, table5, table6, table7, fig11, table12, paper_vs_code)
+SCRIPTS = (table3, table4, table5, table6, fig11, table12, paper_vs_code)
 
 
 pytestmark = pytest.mark.usefixtures("cache_dir", "restore_threads")
@@ -91,7 +91,7 @@ def test_compactness_figures_show_why_the_literal_sum_collapses():
 
 
 # ----------------------------------------------------------------------------------------------
-# Noise (Table 5)
+# Noise (Table 4)
 # ----------------------------------------------------------------------------------------------
 
 
@@ -190,8 +190,8 @@ def test_estimated_wall_time_spreads_the_runs_over_the_jobs():
 # ----------------------------------------------------------------------------------------------
 
 
-def test_table4_runs_the_three_supervisions_on_three_categories():
-    _, runs = _runs(table4)
+def test_table3_runs_the_three_supervisions_on_three_categories():
+    _, runs = _runs(table3)
     assert _keys(runs, "category", "variant") == {(c, v) for c in ("chair", "table", "airplane")
                                                   for v in ("P2C-Dis", "Chamfer-Dis", "P2C-Seg")}
     assert len(runs) == 9 and all(r.config.max_steps == 600 and r.config.loss_config.lambda_compact == 0 for r in runs)
@@ -204,8 +204,8 @@ def test_table4_runs_the_three_supervisions_on_three_categories():
                                                                                                    "nearest_surface")
 
 
-def test_table5_crosses_four_noise_levels_with_four_distances():
-    _, runs = _runs(table5)
+def test_table4_crosses_four_noise_levels_with_four_distances():
+    _, runs = _runs(table4)
     assert len(runs) == 16 and {r.config.category for r in runs} == {"chair"}
     assert _keys(runs, "sigma_n", "distance", "sigma_s") == {
         (n, d, s) for n in (0.0, 0.01, 0.02, 0.03) for d, s in (("Distance", 0.0), ("Normal", 0.0), ("Normal", 0.025),
@@ -216,14 +216,14 @@ def test_table5_crosses_four_noise_levels_with_four_distances():
         assert loss.distance == ("nearest_surface" if r.key["distance"] == "Distance" else "normal")
 
 
-def test_table6_has_exactly_the_four_lambdas_with_three_seeds():
-    _, runs = _runs(table6)
+def test_table5_has_exactly_the_four_lambdas_with_three_seeds():
+    _, runs = _runs(table5)
     assert sorted({r.key["lambda_1"] for r in runs}) == [0.0, 0.05, 0.1, 0.2]
     assert len(runs) == 12 and {r.key["seed"] for r in runs} == {0, 1, 2}
     for r in runs:
         assert r.config.loss_config.lambda_compact == r.key["lambda_1"] and r.config.loss_config.compactness_average
         assert r.config.seed == r.key["seed"]
-    _, quick = _runs(table6, "--quick", "--with-sum-form")
+    _, quick = _runs(table5, "--quick", "--with-sum-form")
     assert len(quick) == 5
     assert [r.config.loss_config.compactness_average for r in quick if r.key["form"] == "sum"] == [False]
 
@@ -242,11 +242,11 @@ def test_paper_vs_code_goes_from_the_printed_losses_to_the_authors_code_one_chan
     assert len({r.config.replace(loss={}, seed=0).model_config for r in runs}) == 1  # one network for all
 
 
-def test_table7_sweeps_the_number_of_cuboids_on_three_categories():
-    _, runs = _runs(table7, "--seeds", "2")
+def test_table6_sweeps_the_number_of_cuboids_on_three_categories():
+    _, runs = _runs(table6, "--seeds", "2")
     assert _keys(runs, "category", "M") == {(c, m) for c in ("chair", "table", "airplane") for m in (8, 12, 16, 20, 24)}
     assert len(runs) == 30 and all(r.config.model_config.num_cuboids == r.key["M"] for r in runs)
-    _, chairs = _runs(table7, "--categories", "chair")
+    _, chairs = _runs(table6, "--categories", "chair")
     assert {r.config.category for r in chairs} == {"chair"} and len(chairs) == 5
 
 
@@ -355,31 +355,31 @@ def test_fig11_quick_writes_the_figure(tmp_path):
     assert data["files"] == [str(png)] and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_table6_quick_runs_in_worker_processes(tmp_path):
+def test_table5_quick_runs_in_worker_processes(tmp_path):
     """The real command line, two jobs in separate processes (the only subprocess of this file)."""
     result = subprocess.run(
-        [sys.executable, str(EXPERIMENTS / "table6_compactness.py"), "--quick", "--jobs", "2", "--out", str(tmp_path),
+        [sys.executable, str(EXPERIMENTS / "table5_compactness.py"), "--quick", "--jobs", "2", "--out", str(tmp_path),
          "--runs-dir", str(tmp_path / "runs")],
         capture_output=True, text=True, timeout=300, cwd=tmp_path,
     )
     assert result.returncode == 0, result.stderr
-    data = json.loads((tmp_path / "table6_compactness_quick.json").read_text())
+    data = json.loads((tmp_path / "table5_compactness_quick.json").read_text())
     assert sorted(r["key"]["lambda_1"] for r in data["runs"]) == [0.0, 0.05, 0.1, 0.2]
     assert data["machine"]["jobs"] == 2 and all(r["status"] == "ok" for r in data["runs"])
-    assert "Table 6" in result.stdout and "N_AC (paper)" in result.stdout
+    assert "Table 5" in result.stdout and "N_AC (paper)" in result.stdout
 
 
 @pytest.mark.parametrize(
     "module, argv, match",
     [
-        (table6, ["--jobs", "0"], "argument --jobs: expected a positive integer, got '0'"),
-        (table6, ["--steps", "many"], "argument --steps: expected a positive integer"),
-        (table4, ["--categories", "chair,sofa"], "argument --categories: expected a comma-separated list"),
-        (table7, ["--shapes", "10"], "--shapes 10 leaves 7 training shapes, fewer than the batch size 8"),
+        (table5, ["--jobs", "0"], "argument --jobs: expected a positive integer, got '0'"),
+        (table5, ["--steps", "many"], "argument --steps: expected a positive integer"),
+        (table3, ["--categories", "chair,sofa"], "argument --categories: expected a comma-separated list"),
+        (table6, ["--shapes", "10"], "--shapes 10 leaves 7 training shapes, fewer than the batch size 8"),
         (table12, ["--checkpoints", "/nonexistent"], "/nonexistent/airplane.pt: no such checkpoint"),
         (table12, ["--checkpoints", "/nonexistent", "--seeds", "2"], "takes no --seeds"),
         (fig11, ["--quick", "--shape", "5"], "--shape 5 is out of range: the test split has 2 shapes"),
-        (table4, ["--lambda-compact", "-1"], "--lambda-compact must be a non-negative number"),
+        (table3, ["--lambda-compact", "-1"], "--lambda-compact must be a non-negative number"),
     ],
 )
 def test_bad_arguments_give_one_line_errors(module, argv, match, capsys):

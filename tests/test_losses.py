@@ -57,7 +57,7 @@ def test_allocation_portions_rejects_bad_input(W, match):
 
 
 # =========================================================================================================
-# Cuboid compactness loss (Sec. 3.4.2, Eq. 6) and the comparison penalties of Fig. 8 (L1, L2)
+# Cuboid compactness loss (Sec. 3.4.2, Eq. 6) and the comparison penalties of Fig. 5 (L1, L2)
 # =========================================================================================================
 
 EPS = 0.01  # the paper's eps_sps
