@@ -3,6 +3,9 @@
 Each subcommand lives in a small ``_cmd_*`` function registered in :func:`build_parser`. Errors a
 user can fix (bad paths, bad inputs) are printed as one readable line with a non-zero exit code;
 ``--traceback`` shows the full Python traceback instead.
+
+Why one file: it is the one place that lists every subcommand and option of the tool; each command is a
+thin layer over the library (:func:`cuboidlib.abstraction.abstract` for ``fit`` and ``abstract``).
 """
 
 from __future__ import annotations

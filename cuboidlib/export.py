@@ -70,6 +70,9 @@ and an int ``label`` = the cuboid index; :func:`cuboidlib.io.read_point_cloud` r
 HTML (:func:`write_view_html`): a self-contained plotly page (plotly.js embedded, about 4-5 MB, no
 server or internet needed) of one result or a folder of results, drawn by
 :func:`cuboidlib.viz.plot_cuboids_plotly`.
+
+Why one file: JSON, meshes, segmented points and the HTML view share one colour rule and one
+coordinate rule, stated once below.
 """
 
 from __future__ import annotations

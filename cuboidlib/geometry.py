@@ -23,6 +23,9 @@ works on the device and dtype of its inputs (numpy arrays are accepted and conve
 validate their inputs by default; ``validate=False`` skips the checks for hot loops and then expects
 tensors of one float dtype on one device. The functional API is the primary one; :class:`Cuboids`
 is a small container that bundles a batch of cuboids and calls into it.
+
+Why one file: the cuboid type and every geometric operation on it (frames, faces, corners,
+sampling, meshes) form one concept that every other module uses.
 """
 
 from __future__ import annotations

@@ -20,6 +20,9 @@ so results can be written back in the user's coordinates.
 Writers: :func:`write_point_cloud` (PLY with normals and a ``label`` property, text rows, ``.npy``)
 and :func:`write_data_samples` (the committed ``data_samples/`` folder). Every error names the file
 and the problem (``FileNotFoundError`` for a missing file, ``ValueError`` otherwise).
+
+Why one file: every format is read into the same :class:`PointCloud` through the same validation,
+so a malformed file of any format fails with the same kind of message.
 """
 
 from __future__ import annotations

@@ -24,6 +24,9 @@ statistics of all edges (or points), as in the reference. Tests check values and
 ``reference_forward`` in float64. ``benchmarks/bench_model.py`` times a training step of both. The
 chunked EdgeConv runs many small multi-threaded operations: on a CPU whose cores are already busy
 with other work, ``torch.set_num_threads(1)`` avoids threads waiting for each other.
+
+Why one file: it is the network of Fig. 3 in one place, the readable EdgeConv and its fast version
+side by side.
 """
 
 from __future__ import annotations

@@ -43,6 +43,9 @@ Determinism: shape ``i`` of a collection is generated from its own random genera
 ``(seed, category index, i)``, so collections are repeatable and a prefix of a larger collection
 equals the smaller collection. Collections are cached on disk (npz, no pickle) keyed by category,
 size, points per shape, seed and :data:`GENERATOR_VERSION`.
+
+Why one file: the four categories' generators share their part vocabulary, sampling and
+normalisation; a shape's parts are only meaningful together with them.
 """
 
 from __future__ import annotations
@@ -168,7 +171,25 @@ def _chair(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
     else:
         parts.append(box(seat_c, [W / 2, T / 2, D / 2], label=SEAT))
 
-    # Back: a frame pivoting about the seat's rear top edge, leaning backwards by tau.
+    _chair_back(rng, W, D, T, H, tilted, slatted, parts, BACK)
+    top_y = H - T / 2
+    if legs_type == "legs4":
+        _chair_legs(rng, W, D, top_y, stretchers, parts, LEG)
+    elif legs_type == "pedestal":
+        _chair_pedestal(rng, top_y, parts, LEG)
+    else:
+        _chair_sled(rng, W, D, top_y, parts, LEG)
+    if arms:
+        _chair_arms(rng, W, D, H, top_y, parts, ARM)
+    structure = legs_type + ("+stretchers" if stretchers else "") + ("+arms" if arms else "")
+    structure += "+slatted-back" if slatted else "+solid-back"
+    structure += "+tilted" if tilted else ""
+    return parts, structure, legs_type + ("+arms" if arms else "")
+
+
+def _chair_back(rng, W, D, T, H, tilted, slatted, parts, BACK) -> None:
+    """The back: a frame pivoting about the seat's rear top edge, leaning backwards by tau; solid or slatted."""
+    U = rng.uniform
     tau = U(6, 20) * _DEG if tilted else 0.0
     Hb, Wb, Tb = U(0.30, 0.60), W * U(0.8, 1.0), U(0.025, 0.07)
     P = np.array([0.0, H, -D / 2 + U(0.0, 0.02)])
@@ -192,70 +213,78 @@ def _chair(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
                 parts.append(_frame_block(P, axes, (x - wsp / 2, x + wsp / 2), (-below, top - hr / 2),
                                           (0.2 * Tb, 0.8 * Tb), BACK))
 
-    top_y = H - T / 2
-    if legs_type == "legs4":
-        lw, round_legs = U(0.025, 0.05), rng.random() < 0.4
-        inset = lw / 2 + U(0.005, 0.05)
-        splay = U(2, 8) * _DEG if rng.random() < 0.35 else 0.0
-        out = top_y * math.tan(splay)
-        tops, feet = [], []
-        for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-            a = np.array([sx * (W / 2 - inset), top_y, sz * (D / 2 - inset)])
-            b = a + np.array([sx * out, -top_y, sz * out])
-            tops.append(a)
-            feet.append(b)
-            parts.append(bar(a, b, lw, LEG, round_legs))
-        if stretchers:
-            hs, sw = U(0.08, 0.25), lw * U(0.5, 0.8)
-            at = [f + (t - f) * hs / top_y for t, f in zip(tops, feet)]  # leg axes at height hs
-            if rng.random() < 0.5:
-                pairs = [(0, 1), (1, 2), (2, 3), (3, 0)]
-                for i, j in pairs:
-                    parts.append(bar(at[i], at[j], sw, LEG, round_legs))
-            else:  # H pattern: two side bars and a cross bar between their midpoints
-                parts.append(bar(at[0], at[3], sw, LEG, round_legs))
-                parts.append(bar(at[1], at[2], sw, LEG, round_legs))
-                parts.append(bar((at[0] + at[3]) / 2, (at[1] + at[2]) / 2, sw, LEG, round_legs))
-    elif legs_type == "pedestal":
-        casters = rng.random() < 0.6
-        rc, rw = U(0.02, 0.04), U(0.02, 0.03)
-        base_y = U(0.06, 0.10) if casters else U(0.03, 0.05)
-        spoke_w, n_spokes, Ls = U(0.025, 0.045), 5 if rng.random() < 0.8 else 4, U(0.22, 0.32)
-        hub_r = max(rc * 1.6, spoke_w)
-        parts.append(Cylinder.between([0, base_y - spoke_w, 0], [0, base_y + 0.04, 0], hub_r, LEG))
-        parts.append(Cylinder.between([0, base_y, 0], [0, top_y, 0], rc, LEG))
-        tip_y = 1.6 * rw if casters else spoke_w / 2
-        phase = U(0, 2 * math.pi)
-        for k in range(n_spokes):
-            ang = phase + 2 * math.pi * k / n_spokes
-            tip = np.array([Ls * math.sin(ang), tip_y, Ls * math.cos(ang)])
-            parts.append(bar([0, base_y, 0], tip, spoke_w, LEG))
-            if casters:
-                parts.append(Capsule([tip[0], rw, tip[2]], [tip[0], rw, tip[2]], rw, LEG))
-    else:  # sled runners: a U-shaped tube on each side
-        rt = U(0.008, 0.016)
-        xs = W / 2 - rt - U(0.0, 0.04)
-        zf, zb = D / 2 + U(-0.03, 0.06), -D / 2 - U(-0.03, 0.05)
-        for s in (-1, 1):
-            f, b = np.array([s * xs, rt, zf]), np.array([s * xs, rt, zb])
-            parts.append(Capsule(b, f, rt, LEG))
-            parts.append(Capsule(f, [s * xs, top_y, D / 2 - 0.05], rt, LEG))
-            parts.append(Capsule(b, [s * xs, top_y, -D / 2 + 0.05], rt, LEG))
 
-    if arms:
-        ha, aw, at_ = U(0.15, 0.25), U(0.04, 0.07), U(0.02, 0.04)
-        z_rear, z_front = -D / 2 + 0.01, D / 2 - U(0.0, 0.06)
-        sup_w, round_sup = U(0.025, 0.04), rng.random() < 0.3
-        for s in (-1, 1):
-            xa = s * (W / 2 - aw / 2 - U(0.0, 0.02))
-            parts.append(box([xa, H + ha, (z_rear + z_front) / 2], [aw / 2, at_ / 2, (z_front - z_rear) / 2], label=ARM))
-            for z in (z_front - 0.03, z_rear + 0.03):
-                parts.append(bar([xa, top_y, z], [xa, H + ha, z], min(sup_w, aw * 0.9), ARM, round_sup))
+def _chair_legs(rng, W, D, top_y, stretchers, parts, LEG) -> None:
+    """Four legs (maybe splayed) and maybe stretchers between them (a ring or an H)."""
+    U = rng.uniform
+    lw, round_legs = U(0.025, 0.05), rng.random() < 0.4
+    inset = lw / 2 + U(0.005, 0.05)
+    splay = U(2, 8) * _DEG if rng.random() < 0.35 else 0.0
+    out = top_y * math.tan(splay)
+    tops, feet = [], []
+    for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+        a = np.array([sx * (W / 2 - inset), top_y, sz * (D / 2 - inset)])
+        b = a + np.array([sx * out, -top_y, sz * out])
+        tops.append(a)
+        feet.append(b)
+        parts.append(bar(a, b, lw, LEG, round_legs))
+    if stretchers:
+        hs, sw = U(0.08, 0.25), lw * U(0.5, 0.8)
+        at = [f + (t - f) * hs / top_y for t, f in zip(tops, feet)]  # leg axes at height hs
+        if rng.random() < 0.5:
+            pairs = [(0, 1), (1, 2), (2, 3), (3, 0)]
+            for i, j in pairs:
+                parts.append(bar(at[i], at[j], sw, LEG, round_legs))
+        else:  # H pattern: two side bars and a cross bar between their midpoints
+            parts.append(bar(at[0], at[3], sw, LEG, round_legs))
+            parts.append(bar(at[1], at[2], sw, LEG, round_legs))
+            parts.append(bar((at[0] + at[3]) / 2, (at[1] + at[2]) / 2, sw, LEG, round_legs))
 
-    structure = legs_type + ("+stretchers" if stretchers else "") + ("+arms" if arms else "")
-    structure += "+slatted-back" if slatted else "+solid-back"
-    structure += "+tilted" if tilted else ""
-    return parts, structure, legs_type + ("+arms" if arms else "")
+
+def _chair_pedestal(rng, top_y, parts, LEG) -> None:
+    """An office-chair column on a star of 4 or 5 spokes, maybe with casters."""
+    U = rng.uniform
+    casters = rng.random() < 0.6
+    rc, rw = U(0.02, 0.04), U(0.02, 0.03)
+    base_y = U(0.06, 0.10) if casters else U(0.03, 0.05)
+    spoke_w, n_spokes, Ls = U(0.025, 0.045), 5 if rng.random() < 0.8 else 4, U(0.22, 0.32)
+    hub_r = max(rc * 1.6, spoke_w)
+    parts.append(Cylinder.between([0, base_y - spoke_w, 0], [0, base_y + 0.04, 0], hub_r, LEG))
+    parts.append(Cylinder.between([0, base_y, 0], [0, top_y, 0], rc, LEG))
+    tip_y = 1.6 * rw if casters else spoke_w / 2
+    phase = U(0, 2 * math.pi)
+    for k in range(n_spokes):
+        ang = phase + 2 * math.pi * k / n_spokes
+        tip = np.array([Ls * math.sin(ang), tip_y, Ls * math.cos(ang)])
+        parts.append(bar([0, base_y, 0], tip, spoke_w, LEG))
+        if casters:
+            parts.append(Capsule([tip[0], rw, tip[2]], [tip[0], rw, tip[2]], rw, LEG))
+
+
+def _chair_sled(rng, W, D, top_y, parts, LEG) -> None:
+    """Sled runners: a U-shaped tube on each side."""
+    U = rng.uniform
+    rt = U(0.008, 0.016)
+    xs = W / 2 - rt - U(0.0, 0.04)
+    zf, zb = D / 2 + U(-0.03, 0.06), -D / 2 - U(-0.03, 0.05)
+    for s in (-1, 1):
+        f, b = np.array([s * xs, rt, zf]), np.array([s * xs, rt, zb])
+        parts.append(Capsule(b, f, rt, LEG))
+        parts.append(Capsule(f, [s * xs, top_y, D / 2 - 0.05], rt, LEG))
+        parts.append(Capsule(b, [s * xs, top_y, -D / 2 + 0.05], rt, LEG))
+
+
+def _chair_arms(rng, W, D, H, top_y, parts, ARM) -> None:
+    """Two arm rests, each on two supports."""
+    U = rng.uniform
+    ha, aw, at_ = U(0.15, 0.25), U(0.04, 0.07), U(0.02, 0.04)
+    z_rear, z_front = -D / 2 + 0.01, D / 2 - U(0.0, 0.06)
+    sup_w, round_sup = U(0.025, 0.04), rng.random() < 0.3
+    for s in (-1, 1):
+        xa = s * (W / 2 - aw / 2 - U(0.0, 0.02))
+        parts.append(box([xa, H + ha, (z_rear + z_front) / 2], [aw / 2, at_ / 2, (z_front - z_rear) / 2], label=ARM))
+        for z in (z_front - 0.03, z_rear + 0.03):
+            parts.append(bar([xa, top_y, z], [xa, H + ha, z], min(sup_w, aw * 0.9), ARM, round_sup))
 
 
 # --------------------------------------------------------------------------------------- table
@@ -268,7 +297,6 @@ def _table(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
     support = _pick(rng, ("legs4", "pedestal"), (0.4, 0.6)) if round_top else _pick(
         rng, ("legs4", "pedestal", "trestle"), (0.5, 0.2, 0.3))
     H, T = U(0.42, 0.78), U(0.025, 0.07)
-    top_y = H - T / 2
     parts: list[Solid] = []
     extras: list[str] = []
     up = frame_from_axis([0.0, 1.0, 0.0])
@@ -276,6 +304,7 @@ def _table(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
     if round_top:
         R = U(0.35, 0.65)
         parts.append(Cylinder([0, H - T / 2, 0], up, R, T / 2, TOP))
+        W = D = 2 * R
         reach = R  # distance from the centre to the edge, for supports
     else:
         W = U(0.8, 1.2) if support == "pedestal" else U(0.8, 1.8)
@@ -286,99 +315,155 @@ def _table(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
         else:
             parts.append(box([0, H - T / 2, 0], [W / 2, T / 2, D / 2], label=TOP))
         reach = min(W, D) / 2
-
+    top = _TableTop(H, T, W, D, reach, round_top, up)
     if support == "legs4":
-        lw, round_legs = U(0.03, 0.08), rng.random() < 0.4
-        splay = U(2, 7) * _DEG if rng.random() < 0.25 else 0.0
-        out = top_y * math.tan(splay)
-        if round_top:
-            rl = R * U(0.45, 0.7)
-            phase = 45 * _DEG
-            corners = [(rl * math.cos(phase + k * math.pi / 2), rl * math.sin(phase + k * math.pi / 2)) for k in range(4)]
-        else:
-            inset = lw / 2 + U(0.01, 0.12)
-            corners = [(sx * (W / 2 - inset), sz * (D / 2 - inset)) for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-        tops, feet = [], []
-        for cx, cz in corners:
-            a = np.array([cx, top_y, cz])
-            d = np.array([cx, 0.0, cz]) / math.hypot(cx, cz)
-            b = np.array([cx, 0.0, cz]) + out * d
-            tops.append(a)
-            feet.append(b)
-            parts.append(bar(a, b, lw, LEG, round_legs))
-        extra = _pick(rng, ("none", "shelf", "stretchers"), (0.4, 0.3, 0.3))
-        hs = U(0.1, 0.3) * H
-        at = [f + (t - f) * hs / top_y for t, f in zip(tops, feet)]
-        if extra == "shelf":
-            extras.append("shelf")
-            ts = U(0.015, 0.03)
-            if round_top:
-                rs = float(np.linalg.norm(at[0][[0, 2]]))
-                parts.append(Cylinder([0, hs, 0], up, rs, ts / 2, LEG))
-            else:
-                hx, hz = abs(at[0][0]), abs(at[0][2])
-                parts.append(box([0, hs, 0], [hx, ts / 2, hz], label=LEG))
-        elif extra == "stretchers":
-            extras.append("stretchers")
-            sw = lw * U(0.4, 0.7)
-            if rng.random() < 0.5:
-                for i in range(4):
-                    parts.append(bar(at[i], at[(i + 1) % 4], sw, LEG, round_legs))
-            else:  # crossing diagonals
-                parts.append(bar(at[0], at[2], sw, LEG, round_legs))
-                parts.append(bar(at[1], at[3], sw, LEG, round_legs))
-        if not round_top and rng.random() < 0.4:
-            extras.append("apron")
-            ah, th = U(0.05, 0.12), min(U(0.015, 0.03), lw * 0.8)
-            yc, hh = top_y - (ah + T / 2) / 2, (ah + T / 2) / 2
-            for i in range(4):
-                a, b = tops[i], tops[(i + 1) % 4]
-                mid = (a + b) / 2
-                length = float(np.linalg.norm((b - a)[[0, 2]]))
-                along = abs(b[0] - a[0]) > abs(b[2] - a[2])
-                half = [length / 2, hh, th / 2] if along else [th / 2, hh, length / 2]
-                parts.append(box([mid[0], yc, mid[2]], half, label=LEG))
+        _table_legs(rng, top, parts, extras, LEG)
     elif support == "pedestal":
-        rc = U(0.04, 0.10)
-        bt = U(0.02, 0.05)
-        parts.append(Cylinder.between([0, bt / 2, 0], [0, top_y, 0], rc, LEG))
-        base_r = max(reach * U(0.45, 0.75), rc * 2.2)
-        if rng.random() < 0.5:
-            extras.append("disc-base")
-            parts.append(Cylinder([0, bt / 2, 0], up, base_r, bt / 2, LEG))
-        else:
-            extras.append("cross-base")
-            fh, fw = U(0.03, 0.06), U(0.04, min(0.08, 1.6 * rc))
-            phase = 0.0 if round_top else 45 * _DEG * rng.integers(0, 2)
-            for k in range(4):
-                ang = phase + k * math.pi / 2
-                tip = np.array([base_r * math.cos(ang), fh / 2, base_r * math.sin(ang)])
-                parts.append(bar([0, fh / 2, 0], tip, fw, LEG))
-            parts.append(Cylinder.between([0, 0, 0], [0, fh * 1.2, 0], rc * 1.3, LEG))
-    else:  # trestle ends: post + foot (+ cleat under the top), optional stretcher between the posts
-        inset, pw, pd = U(0.05, 0.2), U(0.04, 0.10), U(0.06, 0.25)
-        fh, pf, fl = U(0.04, 0.08), pw * U(1.1, 1.6), D * U(0.6, 0.95)
-        cleat = rng.random() < 0.6
-        xe = W / 2 - inset
-        for s in (-1, 1):
-            parts.append(box([s * xe, (fh / 2 + top_y) / 2, 0], [pw / 2, (top_y - fh / 2) / 2, pd / 2], label=LEG))
-            parts.append(box([s * xe, fh / 2, 0], [pf / 2, fh / 2, fl / 2], label=LEG))
-            if cleat:
-                ch = U(0.03, 0.05)
-                parts.append(box([s * xe, H - T - ch / 2 + T / 4, 0], [pf / 2, ch / 2 + T / 4, fl * 0.45], label=LEG))
-        if cleat:
-            extras.append("cleats")
-        if rng.random() < 0.6:
-            extras.append("stretcher")
-            sh, ss = U(0.15, 0.5) * H, U(0.03, min(0.06, pd * 0.9))
-            parts.append(box([0, sh, 0], [xe, ss / 2, ss / 2], label=LEG))
-
+        _table_pedestal(rng, top, parts, extras, LEG)
+    else:
+        _table_trestle(rng, top, parts, extras, LEG)
     coarse = "trestle" if support == "trestle" else f"{support}-{'round' if round_top else 'rect'}"
     structure = coarse + "".join("+" + e for e in extras)
     return parts, structure, coarse
 
 
-# ------------------------------------------------------------------------------------ airplane
+@dataclass(frozen=True)
+class _TableTop:
+    """The sizes of a table top that its supports are built from (a round top has W = D = 2R)."""
+
+    H: float  # height of the top surface
+    T: float  # thickness
+    W: float  # width (x)
+    D: float  # depth (z)
+    reach: float  # distance from the centre to the nearest edge
+    round: bool
+    up: np.ndarray  # frame with +y as the axis, for vertical cylinders
+
+    @property
+    def y(self) -> float:  # height of the top's mid-plane
+        return self.H - self.T / 2
+
+
+def _table_legs(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> None:
+    """Four legs (maybe splayed), then a shelf or stretchers, and on rectangular tops maybe an apron."""
+    U, top_y = rng.uniform, top.y
+    lw, round_legs = U(0.03, 0.08), rng.random() < 0.4
+    splay = U(2, 7) * _DEG if rng.random() < 0.25 else 0.0
+    out = top_y * math.tan(splay)
+    if top.round:
+        rl = top.W / 2 * U(0.45, 0.7)
+        phase = 45 * _DEG
+        corners = [(rl * math.cos(phase + k * math.pi / 2), rl * math.sin(phase + k * math.pi / 2)) for k in range(4)]
+    else:
+        inset = lw / 2 + U(0.01, 0.12)
+        corners = [(sx * (top.W / 2 - inset), sz * (top.D / 2 - inset))
+                   for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    tops, feet = [], []
+    for cx, cz in corners:
+        a = np.array([cx, top_y, cz])
+        d = np.array([cx, 0.0, cz]) / math.hypot(cx, cz)
+        b = np.array([cx, 0.0, cz]) + out * d
+        tops.append(a)
+        feet.append(b)
+        parts.append(bar(a, b, lw, LEG, round_legs))
+    extra = _pick(rng, ("none", "shelf", "stretchers"), (0.4, 0.3, 0.3))
+    hs = U(0.1, 0.3) * top.H
+    at = [f + (t - f) * hs / top_y for t, f in zip(tops, feet)]
+    if extra == "shelf":
+        extras.append("shelf")
+        ts = U(0.015, 0.03)
+        if top.round:
+            rs = float(np.linalg.norm(at[0][[0, 2]]))
+            parts.append(Cylinder([0, hs, 0], top.up, rs, ts / 2, LEG))
+        else:
+            hx, hz = abs(at[0][0]), abs(at[0][2])
+            parts.append(box([0, hs, 0], [hx, ts / 2, hz], label=LEG))
+    elif extra == "stretchers":
+        extras.append("stretchers")
+        sw = lw * U(0.4, 0.7)
+        if rng.random() < 0.5:
+            for i in range(4):
+                parts.append(bar(at[i], at[(i + 1) % 4], sw, LEG, round_legs))
+        else:  # crossing diagonals
+            parts.append(bar(at[0], at[2], sw, LEG, round_legs))
+            parts.append(bar(at[1], at[3], sw, LEG, round_legs))
+    if not top.round and rng.random() < 0.4:
+        extras.append("apron")
+        ah, th = U(0.05, 0.12), min(U(0.015, 0.03), lw * 0.8)
+        yc, hh = top_y - (ah + top.T / 2) / 2, (ah + top.T / 2) / 2
+        for i in range(4):
+            a, b = tops[i], tops[(i + 1) % 4]
+            mid = (a + b) / 2
+            length = float(np.linalg.norm((b - a)[[0, 2]]))
+            along = abs(b[0] - a[0]) > abs(b[2] - a[2])
+            half = [length / 2, hh, th / 2] if along else [th / 2, hh, length / 2]
+            parts.append(box([mid[0], yc, mid[2]], half, label=LEG))
+
+
+def _table_pedestal(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> None:
+    """A central column on a disc base or on a four-footed cross base."""
+    U = rng.uniform
+    rc = U(0.04, 0.10)
+    bt = U(0.02, 0.05)
+    parts.append(Cylinder.between([0, bt / 2, 0], [0, top.y, 0], rc, LEG))
+    base_r = max(top.reach * U(0.45, 0.75), rc * 2.2)
+    if rng.random() < 0.5:
+        extras.append("disc-base")
+        parts.append(Cylinder([0, bt / 2, 0], top.up, base_r, bt / 2, LEG))
+    else:
+        extras.append("cross-base")
+        fh, fw = U(0.03, 0.06), U(0.04, min(0.08, 1.6 * rc))
+        phase = 0.0 if top.round else 45 * _DEG * rng.integers(0, 2)
+        for k in range(4):
+            ang = phase + k * math.pi / 2
+            tip = np.array([base_r * math.cos(ang), fh / 2, base_r * math.sin(ang)])
+            parts.append(bar([0, fh / 2, 0], tip, fw, LEG))
+        parts.append(Cylinder.between([0, 0, 0], [0, fh * 1.2, 0], rc * 1.3, LEG))
+
+
+def _table_trestle(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> None:
+    """Trestle ends: post + foot (+ cleat under the top), optional stretcher between the posts."""
+    U, top_y, H, T = rng.uniform, top.y, top.H, top.T
+    inset, pw, pd = U(0.05, 0.2), U(0.04, 0.10), U(0.06, 0.25)
+    fh, pf, fl = U(0.04, 0.08), pw * U(1.1, 1.6), top.D * U(0.6, 0.95)
+    cleat = rng.random() < 0.6
+    xe = top.W / 2 - inset
+    for s in (-1, 1):
+        parts.append(box([s * xe, (fh / 2 + top_y) / 2, 0], [pw / 2, (top_y - fh / 2) / 2, pd / 2], label=LEG))
+        parts.append(box([s * xe, fh / 2, 0], [pf / 2, fh / 2, fl / 2], label=LEG))
+        if cleat:
+            ch = U(0.03, 0.05)
+            parts.append(box([s * xe, H - T - ch / 2 + T / 4, 0], [pf / 2, ch / 2 + T / 4, fl * 0.45], label=LEG))
+    if cleat:
+        extras.append("cleats")
+    if rng.random() < 0.6:
+        extras.append("stretcher")
+        sh, ss = U(0.15, 0.5) * H, U(0.03, min(0.06, pd * 0.9))
+        parts.append(box([0, sh, 0], [xe, ss / 2, ss / 2], label=LEG))
+
+
+def _airplane_tail(rng, fin_te: float, rf: float, t_tail: bool, parts: list, TAIL: int) -> None:
+    """The tail: a fin (span along +y, root inside the fuselage, trailing edge at z = fin_te) and a
+    horizontal stabiliser, on top of the fin (T-tail) or at the fuselage."""
+    U = rng.uniform
+    cf, hf, fin_taper = U(0.10, 0.20), U(0.10, 0.22), U(0.4, 0.8)
+    fin_sweep, tf = U(20, 50) * _DEG, 0.1 * cf
+    fin = _wing(fin_te + cf, cf, fin_taper, hf, fin_sweep, tf)[:, [1, 0, 2]]  # swap x <-> y
+    parts.append(Hexahedron(fin, TAIL))
+    cs, bs = U(0.08, 0.15), U(0.12, 0.25)
+    if t_tail:
+        tip_le = fin_te + cf - hf * math.tan(fin_sweep)
+        tip_te = tip_le - fin_taper * cf
+        margin = U(0.02, 0.05)
+        ts = max(0.1 * cs, 0.012)
+        parts.append(box([0, hf, (tip_le + tip_te) / 2], [bs, ts / 2, (tip_le - tip_te) / 2 + margin], label=TAIL))
+    else:
+        st_taper, st_sweep = U(0.4, 0.8), U(10, 40) * _DEG
+        st_le = fin_te + cs + U(0.0, 0.04)
+        y_s = U(-0.3, 0.3) * rf
+        halfs = _wing(st_le, cs, st_taper, bs, st_sweep, 0.1 * cs) @ rotation_z(U(0, 8) * _DEG).T + [0, y_s, 0]
+        parts.append(Hexahedron(halfs, TAIL))
+        parts.append(Hexahedron(halfs * [-1, 1, 1], TAIL))
 
 
 def _airplane(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
@@ -444,26 +529,7 @@ def _airplane(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
             zp = min(0.3 * le, zc - z0 - 0.01)
             parts.append(box([s * xn / 2, yn, zc], [xn / 2, 0.3 * re, zp], label=ENGINE))
 
-    # Tail: fin (span along +y, root inside the fuselage) and horizontal stabiliser.
-    cf, hf, fin_taper = U(0.10, 0.20), U(0.10, 0.22), U(0.4, 0.8)
-    fin_sweep, tf = U(20, 50) * _DEG, 0.1 * cf
-    fin_te = z0 - allow
-    fin = _wing(fin_te + cf, cf, fin_taper, hf, fin_sweep, tf)[:, [1, 0, 2]]  # swap x <-> y
-    parts.append(Hexahedron(fin, TAIL))
-    cs, bs = U(0.08, 0.15), U(0.12, 0.25)
-    if t_tail:
-        tip_le = fin_te + cf - hf * math.tan(fin_sweep)
-        tip_te = tip_le - fin_taper * cf
-        margin = U(0.02, 0.05)
-        ts = max(0.1 * cs, 0.012)
-        parts.append(box([0, hf, (tip_le + tip_te) / 2], [bs, ts / 2, (tip_le - tip_te) / 2 + margin], label=TAIL))
-    else:
-        st_taper, st_sweep = U(0.4, 0.8), U(10, 40) * _DEG
-        st_le = fin_te + cs + U(0.0, 0.04)
-        y_s = U(-0.3, 0.3) * rf
-        halfs = _wing(st_le, cs, st_taper, bs, st_sweep, 0.1 * cs) @ rotation_z(U(0, 8) * _DEG).T + [0, y_s, 0]
-        parts.append(Hexahedron(halfs, TAIL))
-        parts.append(Hexahedron(halfs * [-1, 1, 1], TAIL))
+    _airplane_tail(rng, z0 - allow, rf, t_tail, parts, TAIL)
 
     coarse = f"engines{n_eng}" + ("+t-tail" if t_tail else "")
     structure = f"engines{n_eng}" + ("-rear" if rear else "") + ("+t-tail" if t_tail else "") + f"+{wing_pos}-wing"

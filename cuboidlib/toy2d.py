@@ -14,6 +14,9 @@ point allocation (Eq. (3)-(4)) and the compactness loss (Eq. (6)) avoid them. Ev
 
 The four edges of a rectangle are numbered counter-clockwise by their outward normal in the local
 frame: 0 = +x, 1 = +y, 2 = -x, 3 = -y (see :data:`EDGE_NORMALS`).
+
+Why one file: the 2D toy mirrors the 3D library (distances, allocation, fitting) with one dimension
+less, so lesson 01 needs only this module.
 """
 
 from __future__ import annotations

@@ -767,6 +767,32 @@ def _check_runs(runs: Sequence[Run]) -> None:
                              "needs at least 2")
 
 
+def _print_plan(experiment: Experiment, runs: list, scale, args, estimate: float) -> None:
+    print(f"{experiment.title}")
+    trains = any(run.task == "train" for run in runs)
+    print(f"{len(runs)} runs ({'QUICK: tiny network, numbers meaningless' if scale.quick else 'course scale'}), "
+          + (f"{scale.steps} training steps each, " if trains else "no training, ")
+          + f"{scale.n_shapes} shapes per collection, "
+          f"seeds {list(scale.seeds)}, {args.jobs} at a time"
+          + ("" if scale.quick else f"; estimated wall time on a quiet 2-core machine: {estimate / 60:.1f} min"),
+          flush=True)
+
+
+def _notes(experiment: Experiment, first: TrainConfig, scale, args) -> list[str]:
+    """The notes printed under the table and stored in the results: settings, data, the experiment's own."""
+    sizes = {k: len(v) for k, v in split_indices(first.n_shapes, first.split_fractions, first.split_seed).items()}
+    notes = [f"Settings: {scale.steps} training steps of batch {first.batch_size} per run (the paper: 1000 epochs of "
+             f"batch 32), {scale.n_shapes} shapes per collection ({sizes['train']} train / {sizes['val']} validation "
+             f"/ {sizes['test']} test), {first.n_points} points per shape unless the table varies it, seeds "
+             f"{list(scale.seeds)}, model selected on the validation loss. " + _scale_words(scale), DATA_NOTE]
+    if scale.quick:
+        notes.insert(0, "QUICK RUN: tiny network, 12 shapes, 2 steps; the numbers test the machinery and mean nothing.")
+    notes += experiment.notes(scale, args) if experiment.notes else []
+    if not scale.quick:
+        notes.append(compactness_note(experiment.compactness_category))
+    return notes
+
+
 def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
     """Parse the command line, print the plan, run, print the table, write the results. Exit code:
     0, 1 if some run failed (the results are still written), 2 for bad arguments."""
@@ -780,14 +806,7 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     estimate = estimate_makespan(runs, args.jobs)
-    print(f"{experiment.title}")
-    trains = any(run.task == "train" for run in runs)
-    print(f"{len(runs)} runs ({'QUICK: tiny network, numbers meaningless' if scale.quick else 'course scale'}), "
-          + (f"{scale.steps} training steps each, " if trains else "no training, ")
-          + f"{scale.n_shapes} shapes per collection, "
-          f"seeds {list(scale.seeds)}, {args.jobs} at a time"
-          + ("" if scale.quick else f"; estimated wall time on a quiet 2-core machine: {estimate / 60:.1f} min"),
-          flush=True)
+    _print_plan(experiment, runs, scale, args, estimate)
     if args.plan:
         for run in runs:
             print(f"  {run.name}: {run.task}" + ("" if scale.quick else f", ~{estimate_seconds(run) / 60:.1f} min"))
@@ -801,16 +820,7 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
     wall = time.perf_counter() - start
     summary, table = experiment.report(records, scale, args)
     first = runs[0].config
-    sizes = {k: len(v) for k, v in split_indices(first.n_shapes, first.split_fractions, first.split_seed).items()}
-    notes = [f"Settings: {scale.steps} training steps of batch {first.batch_size} per run (the paper: 1000 epochs of "
-             f"batch 32), {scale.n_shapes} shapes per collection ({sizes['train']} train / {sizes['val']} validation "
-             f"/ {sizes['test']} test), {first.n_points} points per shape unless the table varies it, seeds "
-             f"{list(scale.seeds)}, model selected on the validation loss. " + _scale_words(scale), DATA_NOTE]
-    if scale.quick:
-        notes.insert(0, "QUICK RUN: tiny network, 12 shapes, 2 steps; the numbers test the machinery and mean nothing.")
-    notes += experiment.notes(scale, args) if experiment.notes else []
-    if not scale.quick:
-        notes.append(compactness_note(experiment.compactness_category))
+    notes = _notes(experiment, first, scale, args)
     failed = [r for r in records if r["status"] != "ok"]
     text = "\n".join([table, "", *notes, f"Wall time {wall / 60:.1f} min for {len(runs)} runs, {args.jobs} at a time."])
     if failed:

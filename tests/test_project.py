@@ -173,3 +173,31 @@ def test_readme_checkpoint_table_is_the_cards():
     assert block, "README misses the checkpoint table markers"
     expected = cards_markdown([CHECKPOINTS / f"{c}.pt" for c in CATEGORIES])
     assert block.group(1).strip() == expected, "regenerate README's table with cuboidlib.release.cards_markdown"
+
+
+# ----------------------------------------------------------------------------------------------
+# Layout
+# ----------------------------------------------------------------------------------------------
+
+
+def _code_lines(node) -> int:
+    """Lines of a function without its docstring."""
+    import ast
+
+    first = node.body[0]
+    doc = first.end_lineno - first.lineno + 1 if (
+        isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str)
+    ) else 0
+    return node.end_lineno - node.lineno + 1 - doc
+
+
+@pytest.mark.parametrize("folder", ["cuboidlib", "experiments", "benchmarks"])
+def test_functions_stay_short(folder):
+    import ast
+
+    long = []
+    for path in sorted((ROOT / folder).glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and _code_lines(node) > 80:
+                long.append(f"{path.name}:{node.name} ({_code_lines(node)} lines)")
+    assert not long, f"functions over 80 lines of code (docstring excluded): {long}"
