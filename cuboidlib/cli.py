@@ -358,6 +358,8 @@ def _add_output_options(p, what: str) -> None:
                    help=f"cuboid mesh formats to write, comma-separated: any of {','.join(_MESH_FORMATS)} "
                    "(default: glb)")
     p.add_argument("--quiet", action="store_true", help="no progress bars and no messages")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the results of an earlier run in --out (the files its manifest lists)")
 
 
 def _add_shape_options(p) -> None:
@@ -379,11 +381,29 @@ def _add_model_options(p) -> None:
     p.add_argument("--device", default="cpu", help="cpu (default), cuda[:i] or auto")
 
 
-def _check_out_dir(out: str) -> None:
-    from pathlib import Path
+def _check_out_dir(args) -> None:
+    """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them)."""
+    from .export import prepare_output_folder
 
-    if Path(out).exists() and not Path(out).is_dir():
-        raise UserError(f"--out {out}: exists and is not a folder")
+    try:
+        prepare_output_folder(args.out, args.overwrite)
+    except ValueError as exc:
+        raise UserError(f"--out {exc}") from exc
+
+
+def _record(args, files, complete: bool = True) -> None:
+    """Write the output folder's manifest: the files this run wrote, and whether it completed."""
+    import shlex
+
+    from .export import write_manifest
+
+    argv = sys.argv[1:] if args.argv is None else args.argv
+    write_manifest(args.out, files, "cuboidlib " + shlex.join(argv), complete)
+
+
+def _bars(args) -> bool:
+    """Progress bars only for a person watching: not with --quiet, not into a redirected log."""
+    return not args.quiet and sys.stderr.isatty()
 
 
 def _check_input(path: str) -> None:
@@ -437,6 +457,7 @@ def _save_and_report(args, result, start: float, bar) -> int:
 
     bar.set_description("writing files")
     written = result.save(args.out, formats=args.mesh_format, normalized=args.normalized)
+    _record(args, written.values())
     bar.update(1)
     bar.close()  # before the summary is printed (closing again on leaving the caller's "with" is harmless)
     if not args.quiet:
@@ -476,7 +497,7 @@ def _cmd_fit(args) -> int:
     import time
 
     start = time.perf_counter()
-    _check_out_dir(args.out)
+    _check_out_dir(args)
     _check_shape_file(args.shape)
 
     from tqdm import tqdm
@@ -489,8 +510,8 @@ def _cmd_fit(args) -> int:
             setattr(args, name, getattr(args, name).value())
     config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
     result = abstract(args.shape, None, n_points=args.points, seed=args.seed, fit_config=config,
-                      part_names=args.part_names, progress=not args.quiet)
-    with tqdm(total=1, desc="writing", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
+                      part_names=args.part_names, progress=_bars(args))
+    with tqdm(total=1, desc="writing", disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
         return _save_and_report(args, result, start, bar)
 
 
@@ -522,9 +543,9 @@ def _cmd_abstract(args) -> int:
     from .abstraction import abstract
 
     start = time.perf_counter()
-    _check_out_dir(args.out)
+    _check_out_dir(args)
     _check_shape_file(args.shape)
-    with tqdm(total=2, desc="running the network", disable=args.quiet, leave=False, delay=_BAR_DELAY) as bar:
+    with tqdm(total=2, desc="running the network", disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
         result = abstract(args.shape, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
                           centers=args.centers, part_names=args.part_names, device=args.device)
         bar.update(1)
@@ -544,11 +565,12 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict]) -> list
 
     cuboids = decoded.cuboids.to(device="cpu")
     written = []
-    for k in tqdm(range(len(stems)), desc="writing shapes", disable=args.quiet, leave=False, delay=_BAR_DELAY):
+    for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False, delay=_BAR_DELAY):
         one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
                             cuboids.exists[k:k + 1], validate=False)
         result = Abstraction(one, method=methods[k])
         written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
+        _record(args, written, complete=k == len(stems) - 1)  # an interrupted run says so, with what it wrote
     return written
 
 
@@ -576,7 +598,7 @@ def _cmd_generate(args) -> int:
     from .train import resolve_device
 
     start = time.perf_counter()
-    _check_out_dir(args.out)
+    _check_out_dir(args)
     model, state, path = load_trained_model(args.model, resolve_device(args.device))
     decoded = generate_shapes(model, args.count, torch.Generator().manual_seed(args.seed), args.threshold)
     methods = [{"name": "generate", "checkpoint": str(path), "seed": args.seed, "sample": k,
@@ -620,7 +642,7 @@ def _cmd_interpolate(args) -> int:
     start = time.perf_counter()
     if args.steps < 2:
         raise UserError(f"--steps must be at least 2 (the two ends), got {args.steps}")
-    _check_out_dir(args.out)
+    _check_out_dir(args)
     _check_input(args.shape_a)
     _check_input(args.shape_b)
     model, state, path = load_trained_model(args.model, resolve_device(args.device))
@@ -662,9 +684,18 @@ def _add_view_command(sub) -> None:
 def _cmd_view(args) -> int:
     from .export import write_view_html
 
-    out = write_view_html(args.result, args.out, max_points=args.max_points)
+    from pathlib import Path
+
+    from .export import read_manifest
+
+    manifest = read_manifest(args.result) if Path(args.result).is_dir() else None
+    if manifest is not None and not manifest.get("complete", True) and not args.quiet:
+        print(f"note: the run that wrote {args.result} did not complete ({manifest.get('command')}); "
+              "showing what it wrote", file=sys.stderr)
+    pages = write_view_html(args.result, args.out, max_points=args.max_points)
     if not args.quiet:
-        print(f"wrote {out} (open it in any browser; plotly.js is embedded, no server or internet needed)")
+        shown = pages[0] if len(pages) == 1 else f"{pages[0]} and {len(pages) - 1} more page(s) linked from it"
+        print(f"wrote {shown} (open it in any browser; plotly.js is embedded, no server or internet needed)")
     return 0
 
 

@@ -87,6 +87,7 @@ import numpy as np
 import torch
 import trimesh
 
+from ._files import atomic_path, write_text_atomic
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
 from .viz import UNLABELLED, cuboid_color
@@ -109,6 +110,10 @@ __all__ = [
     "write_cuboid_mesh",
     "write_segmented_point_cloud",
     "write_view_html",
+    "MANIFEST",
+    "read_manifest",
+    "write_manifest",
+    "prepare_output_folder",
 ]
 
 JSON_FORMAT = "cuboidlib-cuboids"
@@ -289,8 +294,7 @@ def write_cuboids_json(path: str | os.PathLike, cuboids: Cuboids, index: int = 0
     """Write shape ``index`` of ``cuboids`` as JSON; keyword arguments as :func:`cuboids_to_dict`."""
     path = Path(path)
     doc = cuboids_to_dict(cuboids, index, **kwargs)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(_dumps(doc) + "\n")
+    write_text_atomic(path, _dumps(doc) + "\n")
     return path
 
 
@@ -461,8 +465,8 @@ def _write_obj(path: Path, cuboids: Cuboids, index: int) -> None:
         offset += len(mesh.vertices)
         r, g, b = (colors[i, :3] / 255).tolist()
         mtl_lines += [f"newmtl {name}", f"Kd {r:.6f} {g:.6f} {b:.6f}", "Ka 0 0 0", "Ks 0 0 0", "d 1", "illum 1"]
-    path.write_text("\n".join(obj_lines) + "\n")
-    mtl.write_text("\n".join(mtl_lines) + "\n")
+    write_text_atomic(mtl, "\n".join(mtl_lines) + "\n")
+    write_text_atomic(path, "\n".join(obj_lines) + "\n")
 
 
 def write_cuboid_mesh(path: str | os.PathLike, cuboids: Cuboids, index: int = 0) -> Path:
@@ -476,9 +480,9 @@ def write_cuboid_mesh(path: str | os.PathLike, cuboids: Cuboids, index: int = 0)
     if kind not in MESH_FORMATS:
         raise ValueError(f"{path}: unknown mesh format {path.suffix!r}; expected one of "
                          f"{', '.join('.' + f for f in MESH_FORMATS)}")
-    path.parent.mkdir(parents=True, exist_ok=True)
     if kind == "glb":
-        cuboid_scene(cuboids, index).export(str(path), file_type="glb")
+        with atomic_path(path) as tmp:
+            cuboid_scene(cuboids, index).export(str(tmp), file_type="glb")
     elif kind == "obj":
         _write_obj(path, cuboids, index)
     else:
@@ -491,7 +495,8 @@ def write_cuboid_mesh(path: str | os.PathLike, cuboids: Cuboids, index: int = 0)
         colors = np.repeat(palette_rgba(cuboids.num_cuboids)[kept], 8, axis=0)
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colors)
         mesh.face_attributes["cuboid"] = np.repeat(kept, 12).astype(np.int32)
-        mesh.export(str(path), file_type="ply", encoding="binary")
+        with atomic_path(path) as tmp:
+            mesh.export(str(tmp), file_type="ply", encoding="binary")
     return path
 
 
@@ -548,8 +553,7 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
     header = ["ply", "format binary_little_endian 1.0",
               "comment written by cuboidlib: points coloured by cuboid, label = cuboid index",
               f"element vertex {len(p)}"] + [f"property {kind[t]} {name}" for name, t in fields] + ["end_header"]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(table.tobytes())
     return path
@@ -565,16 +569,75 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
 # ----------------------------------------------------------------------------------------------
 
 
+# ----------------------------------------------------------------------------------------------
+# Output folders: refuse to mix runs, and a manifest of what each run wrote
+# ----------------------------------------------------------------------------------------------
+
+MANIFEST = "cuboidlib-manifest.json"
+
+
+def read_manifest(folder: str | os.PathLike) -> dict | None:
+    """The manifest of the run that wrote ``folder`` (None if there is none or it is unreadable)."""
+    path = Path(folder) / MANIFEST
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    files = doc.get("files") if isinstance(doc, dict) else None
+    if not isinstance(files, list) or not all(isinstance(f, str) and "/" not in f and f not in ("", ".", "..")
+                                               for f in files):
+        return None
+    return doc
+
+
+def write_manifest(folder: str | os.PathLike, files, command: str | None = None, complete: bool = True) -> Path:
+    """Record the files a run wrote in ``folder`` (names only) and whether the run completed."""
+    names = sorted({Path(f).name for f in files})
+    doc = {"format": "cuboidlib-manifest", "command": command, "complete": bool(complete), "files": names}
+    return write_text_atomic(Path(folder) / MANIFEST, json.dumps(doc, indent=1) + "\n")
+
+
+def prepare_output_folder(folder: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Make ``folder`` ready for a new run's results without mixing them with an earlier run's.
+
+    An empty or new folder is used as it is. A folder that holds files is refused unless ``overwrite``;
+    then the files the earlier run listed in its manifest are removed first (files a cuboidlib run did
+    not write are never touched). A folder with files but no manifest is refused even with
+    ``overwrite``, as nothing says which files are stale.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder}: exists and is not a folder")
+    present = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    if not present:
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder
+    manifest = read_manifest(folder)
+    if not overwrite:
+        raise ValueError(f"{folder}: already holds {len(present)} file(s) ({', '.join(present[:3])}"
+                         f"{', ...' if len(present) > 3 else ''}); choose another folder, or overwrite "
+                         "the earlier results (--overwrite)")
+    if manifest is None:
+        raise ValueError(f"{folder}: holds files that no cuboidlib run recorded (no {MANIFEST}); "
+                         "choose another folder")
+    for name in manifest["files"] + [MANIFEST]:
+        (folder / name).unlink(missing_ok=True)
+    return folder
+
+
 def _result_jsons(path: Path) -> list[Path]:
     if path.is_file():
         return [path]
     if not path.is_dir():
         raise FileNotFoundError(f"{path}: no such result folder or JSON file")
+    manifest = read_manifest(path)
+    candidates = ([path / f for f in manifest["files"] if f.endswith(".json")] if manifest is not None
+                  else sorted(path.glob("*.json")))
     found = []
-    for candidate in sorted(path.glob("*.json")):
+    for candidate in candidates:
         try:
             doc = json.loads(candidate.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
             continue
         if isinstance(doc, dict) and doc.get("format") == JSON_FORMAT:
             found.append(candidate)
@@ -600,28 +663,42 @@ def write_view_html(
     out: str | os.PathLike | None = None,
     max_points: int = 4000,
     cols: int = 4,
-) -> Path:
-    """A self-contained HTML page (plotly.js embedded, opens offline in any browser) of results.
+    per_page: int = 48,
+) -> list[Path]:
+    """Self-contained HTML pages (plotly.js embedded, open offline in any browser) of results.
 
-    result: a result JSON file, or a folder holding one or more (as written by :meth:`cuboidlib.abstraction.Abstraction.save`
-    or ``cuboidlib fit / abstract / generate / interpolate``). One result is drawn with
+    result: a result JSON file, or a folder holding one or more (as written by
+    :meth:`cuboidlib.abstraction.Abstraction.save` or ``cuboidlib fit / abstract / generate /
+    interpolate``; a folder's manifest says which). One result is drawn with
     :func:`cuboidlib.viz.plot_cuboids_plotly` (points coloured by cuboid, translucent cuboids, a
-    legend to toggle each cuboid), several as a grid (:func:`cuboidlib.viz.plot_cuboids_plotly_grid`).
-    out: the HTML file (default: ``view.html`` in the folder, or next to the JSON file).
-    Returns the path written.
+    legend to toggle each cuboid), several as grids (:func:`cuboidlib.viz.plot_cuboids_plotly_grid`) of
+    at most ``per_page`` results per page, with links between the pages.
+    out: the first page (default: ``view.html`` in the folder, or next to the JSON file); page k > 1 is
+    ``view_k.html`` beside it. Returns the paths written.
     """
     from .viz import plot_cuboids_plotly, plot_cuboids_plotly_grid
 
+    if isinstance(per_page, bool) or not isinstance(per_page, int) or per_page < 1:
+        raise ValueError(f"per_page must be a positive integer, got {per_page!r}")
     source = Path(result)
     jsons = _result_jsons(source)
-    items = [_result_item(p) for p in jsons]
-    if len(items) == 1:
-        title, cuboids, points, labels = items[0]
-        fig = plot_cuboids_plotly(points, labels, cuboids, max_points=max_points, title=title, width=900, height=760)
-    else:
-        fig = plot_cuboids_plotly_grid([(p, lab, c) for _, c, p, lab in items], titles=[t for t, *_ in items],
-                                       cols=cols, max_points=max(1, max_points // len(items)))
-    out = Path(out) if out is not None else (source if source.is_dir() else source.parent) / "view.html"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.write_html(str(out), include_plotlyjs=True, full_html=True)
-    return out
+    first = Path(out) if out is not None else (source if source.is_dir() else source.parent) / "view.html"
+    chunks = [jsons[i:i + per_page] for i in range(0, len(jsons), per_page)]
+    pages = [first] + [first.with_name(f"{first.stem}_{k}{first.suffix}") for k in range(2, len(chunks) + 1)]
+    for k, (chunk, page) in enumerate(zip(chunks, pages)):
+        items = [_result_item(p) for p in chunk]
+        if len(items) == 1:
+            title, cuboids, points, labels = items[0]
+            fig = plot_cuboids_plotly(points, labels, cuboids, max_points=max_points, title=title, width=900,
+                                      height=760)
+        else:
+            fig = plot_cuboids_plotly_grid([(p, lab, c) for _, c, p, lab in items], titles=[t for t, *_ in items],
+                                           cols=cols, max_points=max(1, max_points // len(items)))
+        html = fig.to_html(include_plotlyjs=True, full_html=True)
+        if len(pages) > 1:
+            links = " ".join(f"<b>{i + 1}</b>" if i == k else f'<a href="{p.name}">{i + 1}</a>'
+                             for i, p in enumerate(pages))
+            nav = f'<p style="font-family:sans-serif">{len(jsons)} results, page {k + 1} of {len(pages)}: {links}</p>'
+            html = html.replace("<body>", "<body>" + nav, 1)
+        write_text_atomic(page, html)
+    return pages

@@ -34,9 +34,11 @@ import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+
 import numpy as np
 import trimesh
 
+from ._files import atomic_path
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
 from .shapes import CATEGORIES, PART_NAMES, make_shape, plot_shapes
@@ -395,20 +397,21 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
                          f"{suffix} files; rescale them or write .txt")
     if labels is not None:  # PLY stores int32 labels, .npy float32 (whole numbers exact below 2^24)
         labels = _as_labels(labels, source, limit={".ply": 2**31, ".npy": 2**24}.get(suffix, 2**62))
-    path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".ply":
-        _write_ply(path, points, normals, labels, ascii)
+        with atomic_path(path) as tmp:
+            _write_ply(tmp, points, normals, labels, ascii)
         return path
     if labels is not None and normals is None:
         raise ValueError(f"{path}: the {suffix} layout stores labels in column 7, after normals; give normals too")
     cols = [points] + ([normals] if normals is not None else []) + ([labels[:, None]] if labels is not None else [])
     table = np.concatenate(cols, axis=1)
-    if suffix == ".npy":
-        np.save(path, table.astype(np.float32))
-    else:
-        # 9 significant digits: every float32 value reads back exactly, at any magnitude
-        fmt = ["%.9g"] * (table.shape[1] - (labels is not None)) + (["%d"] if labels is not None else [])
-        np.savetxt(path, table, fmt=fmt)
+    with atomic_path(path) as tmp:
+        if suffix == ".npy":
+            np.save(tmp, table.astype(np.float32))
+        else:
+            # 9 significant digits: every float32 value reads back exactly, at any magnitude
+            fmt = ["%.9g"] * (table.shape[1] - (labels is not None)) + (["%d"] if labels is not None else [])
+            np.savetxt(tmp, table, fmt=fmt)
     return path
 
 

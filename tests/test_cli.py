@@ -8,6 +8,7 @@ The network is a tiny randomly initialised one: these tests check the plumbing, 
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -218,7 +219,8 @@ def test_fit_a_mesh_quietly_in_the_normalised_frame(tmp_path, capsys):
     assert captured.out == "" and captured.err == ""
     cuboids, meta = read_cuboids_json(tmp_path / "table_0.json")
     assert meta["coordinates"] == "normalized" and cuboids.num_cuboids == 4 and meta["method"]["points"] == 512
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["table_0.glb", "table_0.json", "table_0_segmentation.ply"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "cuboidlib-manifest.json", "table_0.glb", "table_0.json", "table_0_segmentation.ply"]
 
 
 def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monkeypatch, capsys):
@@ -232,7 +234,8 @@ def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monk
     _, meta = read_cuboids_json(tmp_path / "out" / "chair_1.json")
     assert meta["method"]["checkpoint"] == str(committed / "chair.pt") and meta["method"]["centers"] == "allocation"
     assert meta["method"]["points"] == 128
-    code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "table", "--out", str(tmp_path)])
+    code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "table", "--out",
+                 str(tmp_path / "out2")])
     assert code == 2
     assert_one_line_error(capsys.readouterr().err, "table: no such checkpoint", "committed: chair")
 
@@ -297,3 +300,25 @@ def test_unexpected_errors_are_one_line_with_a_hint(tmp_path, monkeypatch, capsy
                           "rerun with --traceback")
     with pytest.raises(RuntimeError, match="something deep"):
         main(["view", str(tmp_path), "--traceback"])
+
+
+def test_an_output_folder_is_never_mixed_or_overwritten_without_asking(tmp_path, capsys):
+    out = tmp_path / "out"
+    fit = ["fit", str(SAMPLES / "meshes" / "table_0.ply"), "--out", str(out), "--steps", "3", "--cuboids", "4",
+           "--points", "256", "--quiet"]
+    assert main(fit) == 0
+    manifest = json.loads((out / "cuboidlib-manifest.json").read_text())
+    assert manifest["complete"] and manifest["files"] == ["table_0.glb", "table_0.json", "table_0_segmentation.ply"]
+    assert main(fit) == 2
+    assert_one_line_error(capsys.readouterr().err, "already holds 4 file(s)", "--overwrite")
+    (out / "notes.txt").write_text("mine")
+    other = ["fit", str(SAMPLES / "meshes" / "chair_0.ply"), *fit[2:], "--overwrite"]
+    assert main(other) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "chair_0.glb", "chair_0.json", "chair_0_segmentation.ply", "cuboidlib-manifest.json", "notes.txt"]
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "a.txt").write_text("x")
+    assert main([*fit[:3], str(foreign), *fit[4:], "--overwrite"]) == 2
+    assert_one_line_error(capsys.readouterr().err, "no cuboidlib run recorded")
+    assert (foreign / "a.txt").read_text() == "x"

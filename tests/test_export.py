@@ -306,7 +306,7 @@ def test_result_rejects_batches_and_unknown_formats(tmp_path, result, cuboids):
 
 def test_view_html_is_self_contained_and_shows_every_cuboid(tmp_path, result):
     result.save(tmp_path / "one", "thing")
-    page = write_view_html(tmp_path / "one")
+    (page,) = write_view_html(tmp_path / "one")
     assert page == tmp_path / "one" / "view.html"
     html = page.read_text()
     assert "<script src=" not in html.replace(" ", "")  # plotly.js is embedded, nothing is fetched
@@ -322,7 +322,8 @@ def test_view_of_a_folder_of_results_draws_a_grid(tmp_path, cuboids):
     for k in range(3):
         Abstraction(cuboids, method={"name": "generate"}).save(tmp_path, f"generated_{k:02d}", normalized=True)
     (tmp_path / "notes.json").write_text('{"something": "else"}')  # other JSON files are skipped
-    html = write_view_html(tmp_path, tmp_path / "page.html").read_text()
+    (page,) = write_view_html(tmp_path, tmp_path / "page.html")
+    html = page.read_text()
     assert '"scene3"' in html and '"scene4"' not in html
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="holds no cuboidlib result"):
@@ -339,3 +340,41 @@ def test_corner_sets_match_for_a_quarter_turn(tmp_path):
     vertices = scene.geometry["cuboid_00"].vertices
     np.testing.assert_allclose(np.hypot(vertices[:, 0], vertices[:, 2]), 0.5 * math.sqrt(2), rtol=1e-6)
     np.testing.assert_allclose(np.abs(vertices[:, 1]), 0.5, rtol=1e-6)
+
+
+def test_view_of_many_results_is_split_into_linked_pages(tmp_path, cuboids):
+    for k in range(7):
+        Abstraction(cuboids, method={"name": "generate"}).save(tmp_path, f"generated_{k:02d}", normalized=True)
+    pages = write_view_html(tmp_path, per_page=3, max_points=10)
+    assert [p.name for p in pages] == ["view.html", "view_2.html", "view_3.html"]
+    last = pages[-1].read_text()
+    assert "7 results, page 3 of 3" in last and 'href="view.html"' in last and 'href="view_2.html"' in last
+
+
+def test_a_manifest_decides_which_results_a_folder_shows(tmp_path, cuboids):
+    from cuboidlib.export import prepare_output_folder, read_manifest, write_manifest
+
+    files = []
+    for k in range(2):
+        files += Abstraction(cuboids).save(tmp_path, f"r{k}", normalized=True).values()
+    Abstraction(cuboids).save(tmp_path, "stale", normalized=True)  # an earlier run's file, not listed
+    write_manifest(tmp_path, files, "test", complete=False)
+    assert read_manifest(tmp_path)["complete"] is False
+    (page,) = write_view_html(tmp_path)
+    assert '"scene2"' in page.read_text() and '"scene3"' not in page.read_text()
+    with pytest.raises(ValueError, match="already holds"):
+        prepare_output_folder(tmp_path)
+    prepare_output_folder(tmp_path, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stale.glb", "stale.json", "view.html"]
+
+
+def test_a_failed_write_leaves_no_file(tmp_path, cuboids, monkeypatch):
+    import trimesh
+
+    def broken(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(trimesh.Scene, "export", broken)
+    with pytest.raises(OSError, match="disk full"):
+        write_cuboid_mesh(tmp_path / "c.glb", cuboids)
+    assert list(tmp_path.iterdir()) == []
