@@ -35,10 +35,10 @@ from .export import (
     write_cuboids_json,
     write_segmented_point_cloud,
 )
-from .geometry import Cuboids, quaternion_to_rotation_matrix
+from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
 
-__all__ = ["Abstraction", "abstract", "result_files"]
+__all__ = ["Abstraction", "abstract", "result_files", "frame_rotation", "AXES"]
 
 
 @dataclass
@@ -72,10 +72,35 @@ class Abstraction:
     chamfer_convention: ChamferConvention | None = None
     source: str | None = None
     method: dict | None = None
+    frame: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.cuboids, Cuboids) or self.cuboids.batch_size != 1:
             raise ValueError("Abstraction.cuboids must be a Cuboids batch holding ONE shape (1, M, ...)")
+        if self.frame is not None:
+            self.frame = np.asarray(self.frame, dtype=np.float64)
+            if self.frame.shape != (3, 3) or not np.allclose(self.frame @ self.frame.T, np.eye(3), atol=1e-6):
+                raise ValueError("Abstraction.frame must be a 3 x 3 rotation matrix")
+
+    def _to_input_axes(self, cuboids: Cuboids) -> Cuboids:
+        """Normalised cuboids of the course frame (+y up) -> normalised cuboids in the input's axes."""
+        if self.frame is None:
+            return cuboids
+        back = torch.as_tensor(self.frame.T, dtype=cuboids.centers.dtype)
+        q_back = rotation_matrix_to_quaternion(back.double()).to(cuboids.quaternions.dtype)
+        return Cuboids(cuboids.centers @ back.T, quaternion_multiply(q_back, cuboids.quaternions),
+                       cuboids.half_sizes, cuboids.exists)
+
+    def _points_in(self, values: np.ndarray | None, coordinates: str, is_normal: bool = False) -> np.ndarray | None:
+        """The stored points (or normals) in the input's axes, normalised or in its original coordinates."""
+        if values is None:
+            return None
+        out = np.asarray(values, dtype=np.float64)
+        if self.frame is not None:
+            out = out @ self.frame  # rows: R^T p
+        if coordinates == "original" and not is_normal:
+            out = out * self.scale + np.asarray(self.center, dtype=np.float64)
+        return out
 
     @property
     def num_existing(self) -> int:
@@ -83,12 +108,13 @@ class Abstraction:
         return int(self.cuboids.exists.sum())
 
     def cuboids_in(self, coordinates: str = "original") -> Cuboids:
-        """The cuboids (1, M, ...) in the input's ``"original"`` coordinates or the ``"normalized"`` ones."""
-        if coordinates == "normalized":
-            return self.cuboids
-        if coordinates != "original":
+        """The cuboids (1, M, ...) in the input's ``"original"`` coordinates or the ``"normalized"`` ones
+        (bounding box centred, diagonal 1, in the input's own axes; :attr:`cuboids` holds them in the
+        course's frame, +y up, which differs when the input came with another ``up``)."""
+        if coordinates not in ("original", "normalized"):
             raise ValueError(f"coordinates must be 'original' or 'normalized', got {coordinates!r}")
-        return denormalize_cuboids(self.cuboids, self.center, self.scale)
+        cuboids = self._to_input_axes(self.cuboids)
+        return cuboids if coordinates == "normalized" else denormalize_cuboids(cuboids, self.center, self.scale)
 
     def numpy(self, coordinates: str = "original") -> dict[str, np.ndarray]:
         """The EXISTING cuboids as arrays: ``centers`` (K, 3), ``rotations`` (K, 3, 3) (columns are the
@@ -144,11 +170,10 @@ class Abstraction:
         cuboids = self.cuboids_in(coordinates)
         written = {}
         if self.points is not None:
-            points = np.asarray(self.points, dtype=np.float64)
-            if not normalized:
-                points = points * self.scale + np.asarray(self.center, dtype=np.float64)
+            points = self._points_in(self.points, coordinates)
             labels = self.labels if self.labels is not None else np.full(len(points), -1)
-            written["points"] = write_segmented_point_cloud(out / names["points"], points, labels, self.normals)
+            written["points"] = write_segmented_point_cloud(out / names["points"], points, labels,
+                                                            self._points_in(self.normals, coordinates, True))
         written["json"] = write_cuboids_json(
             out / names["json"], cuboids, coordinates=coordinates, center=self.center, scale=self.scale,
             source=self.source, method=self.method, part_labels=self.part_labels, part_names=self.part_names,
@@ -164,9 +189,7 @@ class Abstraction:
         """An interactive plotly figure: the points coloured by cuboid and the translucent cuboids."""
         from .viz import plot_cuboids_plotly
 
-        points = np.zeros((0, 3)) if self.points is None else np.asarray(self.points, dtype=np.float64)
-        if coordinates == "original" and len(points):
-            points = points * self.scale + np.asarray(self.center, dtype=np.float64)
+        points = np.zeros((0, 3)) if self.points is None else self._points_in(self.points, coordinates)
         title = kwargs.pop("title", f"{self.source or 'shape'}: {self.num_existing} of {self.cuboids.num_cuboids} "
                            "cuboids")
         return plot_cuboids_plotly(points, self.labels, self.cuboids_in(coordinates), max_points=max_points,
@@ -191,6 +214,29 @@ def result_files(stem: str, formats=("glb",), points: bool = True) -> dict[str, 
 # ----------------------------------------------------------------------------------------------
 # The pipeline
 # ----------------------------------------------------------------------------------------------
+
+AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
+
+
+def frame_rotation(up: str = "y", front: str | None = None) -> np.ndarray:
+    """The rotation R (3, 3) that takes a shape whose up axis is ``up`` and whose front faces ``front`` into
+    the course's frame (+y up, facing +z): ``p_course = R @ p``.
+
+    Axes are "x", "y", "z", "-x", "-y" or "-z". The default front is +z, or -y for a z-up shape (the
+    convention of Blender and many CAD exports: z up, the front looking down -y), +y for -z up.
+    Example: ``frame_rotation("z")`` maps (0, 0, 1) to (0, 1, 0) and (0, -1, 0) to (0, 0, 1).
+    """
+    if up not in AXES:
+        raise ValueError(f"up must be one of {', '.join(AXES)}, got {up!r}")
+    if front is None:
+        front = {"z": "-y", "-z": "y"}.get(up, "z")
+    if front not in AXES:
+        raise ValueError(f"front must be one of {', '.join(AXES)}, got {front!r}")
+    u, f = np.array(AXES[up], dtype=np.float64), np.array(AXES[front], dtype=np.float64)
+    if abs(float(u @ f)) > 0.5:
+        raise ValueError(f"front {front!r} must be perpendicular to up {up!r}")
+    return np.stack([np.cross(u, f), u, f])  # rows: the input axes that become x, y (up) and z (front)
+
 
 
 def _as_point_cloud(shape, n_points: int | None, seed: int):
@@ -226,6 +272,15 @@ def _as_point_cloud(shape, n_points: int | None, seed: int):
     return pc
 
 
+def _turned(pc, rotation: np.ndarray):
+    """The normalised cloud in the course's frame. R is a signed permutation of the axes, so the rotated
+    cloud is still normalised (bounding box centred, diagonal 1)."""
+    if not np.allclose(rotation, np.eye(3)):
+        pc.points = (np.asarray(pc.points, dtype=np.float64) @ rotation.T).astype(np.float32)
+        pc.normals = (np.asarray(pc.normals, dtype=np.float64) @ rotation.T).astype(np.float32)
+    return pc
+
+
 def _check_part_names(pc, part_names, source) -> None:
     if part_names is not None and pc.labels is not None and len(pc.labels) and int(pc.labels.max()) >= len(part_names):
         raise ValueError(f"{source or 'shape'}: has part labels up to {int(pc.labels.max())} but part_names gives "
@@ -244,6 +299,8 @@ def abstract(
     part_names=None,
     device: str = "cpu",
     progress: bool = False,
+    up: str = "y",
+    front: str | None = None,
 ) -> Abstraction:
     """Cuboid abstraction and segmentation of one shape, in its own coordinates.
 
@@ -264,6 +321,8 @@ def abstract(
         part_names: names of the input's part labels, for the JSON.
         device: "cpu", "cuda[:i]" or "auto".
         progress: show the fit's progress bar.
+        up, front: the input's up axis and the direction its front faces (:func:`frame_rotation`); the
+            networks were trained on +y up, facing +z. The result is written back in the input's axes.
 
     Returns an :class:`Abstraction` (cuboids normalised, with the normalisation to write them back).
     """
@@ -274,10 +333,11 @@ def abstract(
 
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
+    rotation = frame_rotation(up, front)
     source = Path(shape).name if isinstance(shape, (str, os.PathLike)) else getattr(shape, "source", None)
     if model is None:
         config = fit_config if fit_config is not None else FitConfig(seed=seed)
-        pc = _as_point_cloud(shape, 2048 if n_points is None else n_points, seed)
+        pc = _turned(_as_point_cloud(shape, 2048 if n_points is None else n_points, seed), rotation)
         _check_part_names(pc, part_names, source)
         if len(pc) < config.num_cuboids:
             raise ValueError(f"{source or 'shape'}: has {len(pc)} points, fewer than the {config.num_cuboids} cuboids")
@@ -293,6 +353,7 @@ def abstract(
             net, state, path = load_trained_model(model, resolve_device(device))
         trained_points = state.get("config", {}).get("n_points")
         pc = _as_point_cloud(shape, n_points or (trained_points if isinstance(trained_points, int) else 2048), seed)
+        pc = _turned(pc, rotation)
         _check_part_names(pc, part_names, source)
         if len(pc) <= net.config.k:
             raise ValueError(f"{source or 'shape'}: has {len(pc)} points; the network needs more than "
@@ -314,7 +375,11 @@ def abstract(
         num_parts = max(int(pc.labels.max()) + 1, len(part_names) if part_names else 0)
         part_labels = transfer_part_labels(segmentation[None], torch.as_tensor(pc.labels)[None],
                                            cuboids.num_cuboids, num_parts).numpy()
+    identity = np.allclose(rotation, np.eye(3))
+    if not identity:
+        method.update(up=up, front=front or {"z": "-y", "-z": "y"}.get(up, "z"))
     return Abstraction(
         cuboids, pc.center, pc.scale, pc.points, pc.normals, segmentation.numpy(), part_labels,
         None if part_names is None else tuple(part_names), chamfer, convention, source=source, method=method,
+        frame=None if identity else rotation,
     )

@@ -368,6 +368,11 @@ def _add_shape_options(p) -> None:
                    help="seed of the point sampling, the fit and the Chamfer samples (default: 0)")
     p.add_argument("--normalized", action="store_true",
                    help="write in the normalised frame (bounding box centred, diagonal 1) instead of the input's")
+    p.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z"), default="y",
+                   help="the input's up axis (default: y; many CAD and scan files use z); results are written "
+                   "back in the input's axes")
+    p.add_argument("--front", choices=("x", "y", "z", "-x", "-y", "-z"),
+                   help="the direction the input's front faces (default: z, or -y when --up z)")
     p.add_argument("--part-names", type=_part_names, metavar="NAMES",
                    help="comma-separated names of the input's part labels (e.g. back,seat,leg,arm), for the JSON")
 
@@ -510,7 +515,7 @@ def _cmd_fit(args) -> int:
             setattr(args, name, getattr(args, name).value())
     config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
     result = abstract(args.shape, None, n_points=args.points, seed=args.seed, fit_config=config,
-                      part_names=args.part_names, progress=_bars(args))
+                      part_names=args.part_names, progress=_bars(args), up=args.up, front=args.front)
     with tqdm(total=1, desc="writing", disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
         return _save_and_report(args, result, start, bar)
 
@@ -547,7 +552,8 @@ def _cmd_abstract(args) -> int:
     _check_shape_file(args.shape)
     with tqdm(total=2, desc="running the network", disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
         result = abstract(args.shape, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
-                          centers=args.centers, part_names=args.part_names, device=args.device)
+                          centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
+                          front=args.front)
         bar.update(1)
         return _save_and_report(args, result, start, bar)
 

@@ -149,3 +149,34 @@ def test_the_built_wheel_ships_the_committed_networks_and_loads_them(tmp_path):
                          env=env)
     assert run.returncode == 0, run.stderr
     assert Path(run.stdout.strip()) == site / "cuboidlib" / "networks" / "chair.pt"
+
+
+@pytest.mark.parametrize("up, front", [("z", None), ("x", "-z"), ("-y", "z")])
+def test_another_up_axis_gives_the_upright_result_written_back_in_the_input_axes(tmp_path, up, front):
+    from cuboidlib.abstraction import frame_rotation
+
+    s = make_shape("chair", 4, n_points=1024)
+    R = frame_rotation(up, front)
+    turned = np.concatenate([s.points @ R, s.normals @ R], axis=1)  # the chair with `up` as its up axis
+    upright = cuboidlib.abstract(np.concatenate([s.points, s.normals], axis=1), model="chair")
+    told = cuboidlib.abstract(turned, model="chair", up=up, front=front)
+    assert np.array_equal(told.labels, upright.labels) and told.chamfer == pytest.approx(upright.chamfer, rel=1e-5)
+    torch.testing.assert_close(told.cuboids.half_sizes, upright.cuboids.half_sizes, atol=1e-5, rtol=1e-4)
+    mine = told.numpy("normalized")
+    ref = upright.numpy("normalized")
+    np.testing.assert_allclose(mine["centers"], ref["centers"] @ R, atol=1e-4)  # rows: R^T c
+    np.testing.assert_allclose(mine["rotations"], R.T[None] @ ref["rotations"], atol=1e-4)
+    assert told.method["up"] == up
+    files = told.save(tmp_path)
+    cloud = read_point_cloud(files["points"])
+    np.testing.assert_allclose(cloud.points, turned[:, :3], atol=1e-5)  # the input's own points, frame and units
+    np.testing.assert_allclose(cloud.normals, turned[:, 3:], atol=1e-5)
+
+
+def test_up_and_front_must_be_axes_at_right_angles():
+    from cuboidlib.abstraction import frame_rotation
+
+    with pytest.raises(ValueError, match="up must be one of"):
+        frame_rotation("w")
+    with pytest.raises(ValueError, match="must be perpendicular"):
+        frame_rotation("z", "-z")
