@@ -229,7 +229,7 @@ def frame_rotation(up: str = "y", front: str | None = None) -> np.ndarray:
     if up not in AXES:
         raise ValueError(f"up must be one of {', '.join(AXES)}, got {up!r}")
     if front is None:
-        front = {"z": "-y", "-z": "y"}.get(up, "z")
+        front = _default_front(up)
     if front not in AXES:
         raise ValueError(f"front must be one of {', '.join(AXES)}, got {front!r}")
     u, f = np.array(AXES[up], dtype=np.float64), np.array(AXES[front], dtype=np.float64)
@@ -287,6 +287,35 @@ def _check_part_names(pc, part_names, source) -> None:
                          f"only {len(part_names)} names")
 
 
+def _default_front(up: str) -> str:
+    """+z, or -y for a z-up shape (Blender and many CAD exports), +y for -z up."""
+    return {"z": "-y", "-z": "y"}.get(up, "z")
+
+
+def _by_network(shape, model, n_points, seed, threshold, centers, device, rotation, part_names, source):
+    """The network branch of :func:`abstract`: (point cloud, cuboids, segmentation, method)."""
+    from .applications import abstract_shapes, load_trained_model
+    from .model import CuboidAbstractionNet
+    from .train import resolve_device
+
+    if isinstance(model, CuboidAbstractionNet):
+        net, state, path = model, {}, None
+    else:
+        net, state, path = load_trained_model(model, resolve_device(device))
+    trained_points = state.get("config", {}).get("n_points")
+    pc = _as_point_cloud(shape, n_points or (trained_points if isinstance(trained_points, int) else 2048), seed)
+    pc = _turned(pc, rotation)
+    _check_part_names(pc, part_names, source)
+    if len(pc) <= net.config.k:
+        raise ValueError(f"{source or 'shape'}: has {len(pc)} points; the network needs more than k = {net.config.k}")
+    trained_centroids = bool(state.get("config", {}).get("loss", {}).get("centers_from_allocation", False))
+    centroids = trained_centroids if centers == "auto" else centers == "allocation"
+    out = abstract_shapes(net, pc.points, threshold, centers_from_allocation=centroids)
+    method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
+              "threshold": threshold, "centers": "allocation" if centroids else "predicted", "points": len(pc)}
+    return pc, out.cuboids.to(device="cpu"), out.labels[0].cpu(), method
+
+
 def abstract(
     shape,
     model=None,
@@ -326,10 +355,7 @@ def abstract(
 
     Returns an :class:`Abstraction` (cuboids normalised, with the normalisation to write them back).
     """
-    from .applications import abstract_shapes, load_trained_model
     from .fitting import FitConfig, fit_cuboids
-    from .model import CuboidAbstractionNet
-    from .train import resolve_device
 
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
@@ -347,23 +373,8 @@ def abstract(
                   "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
                   "converged": bool(fit.converged[0])}
     else:
-        if isinstance(model, CuboidAbstractionNet):
-            net, state, path = model, {}, None
-        else:
-            net, state, path = load_trained_model(model, resolve_device(device))
-        trained_points = state.get("config", {}).get("n_points")
-        pc = _as_point_cloud(shape, n_points or (trained_points if isinstance(trained_points, int) else 2048), seed)
-        pc = _turned(pc, rotation)
-        _check_part_names(pc, part_names, source)
-        if len(pc) <= net.config.k:
-            raise ValueError(f"{source or 'shape'}: has {len(pc)} points; the network needs more than "
-                             f"k = {net.config.k}")
-        trained_centroids = bool(state.get("config", {}).get("loss", {}).get("centers_from_allocation", False))
-        centroids = trained_centroids if centers == "auto" else centers == "allocation"
-        out = abstract_shapes(net, pc.points, threshold, centers_from_allocation=centroids)
-        cuboids, segmentation = out.cuboids.to(device="cpu"), out.labels[0].cpu()
-        method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
-                  "threshold": threshold, "centers": "allocation" if centroids else "predicted", "points": len(pc)}
+        pc, cuboids, segmentation, method = _by_network(shape, model, n_points, seed, threshold, centers, device,
+                                                        rotation, part_names, source)
     convention = ChamferConvention()
     points = torch.as_tensor(pc.points, dtype=cuboids.centers.dtype)[None]
     chamfer = float(cuboid_chamfer_distance(
@@ -377,7 +388,7 @@ def abstract(
                                            cuboids.num_cuboids, num_parts).numpy()
     identity = np.allclose(rotation, np.eye(3))
     if not identity:
-        method.update(up=up, front=front or {"z": "-y", "-z": "y"}.get(up, "z"))
+        method.update(up=up, front=front or _default_front(up))
     return Abstraction(
         cuboids, pc.center, pc.scale, pc.points, pc.normals, segmentation.numpy(), part_labels,
         None if part_names is None else tuple(part_names), chamfer, convention, source=source, method=method,

@@ -33,6 +33,9 @@ run folder (its ``best.pt``) or the name of a committed checkpoint: ``chair`` me
 ``data_samples/checkpoints/chair.pt`` (one file per category, written by ``cuboidlib train``).
 The folder can be moved with the environment variable ``CUBOIDLIB_CHECKPOINTS``
 (:func:`checkpoint_dir`); :func:`committed_checkpoints` lists what is there.
+
+Why one file: every application and the loading of trained networks by name share the evaluation-mode
+encode / decode of one network; they are Sec. 4.4 in one place.
 """
 
 from __future__ import annotations
