@@ -9,8 +9,9 @@ reconstruction with the sampled point-to-cuboid distance, compactness, existence
 Eq. (4)-(9)). The inputs are random points on a sphere with their normals (the timing does not
 depend on the shapes).
 
-``--variant fast reference`` compares the chunked EdgeConv / global layer with the straightforward
-``reference_forward`` versions (same results). ``--profile`` prints a torch.profiler table of one
+``--variant fast readable`` compares the network built with the fast EdgeConv / global layer
+(``FastEdgeConv``, ``FastGlobalFeature``, the default) with the readable ones (``fast=False``, same
+results). ``--profile`` prints a torch.profiler table of one
 step per configuration.
 
 Example::
@@ -32,7 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from cuboidlib.losses import LossConfig, total_loss
-from cuboidlib.model import CuboidAbstractionNet, EdgeConv, ModelConfig
+from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
 
 
 def run_worker(spec: dict) -> dict:
@@ -43,22 +44,21 @@ def run_worker(spec: dict) -> dict:
     config = ModelConfig(num_cuboids=spec["cuboids"]) if spec["config"] == "paper" else ModelConfig.small(
         num_cuboids=spec["cuboids"]
     )
-    model = CuboidAbstractionNet(config).train()
+    model = CuboidAbstractionNet(config, fast=spec["variant"] == "fast").train()
     if spec["edges_per_chunk"]:
         for module in model.modules():
-            if isinstance(module, EdgeConv):
+            if isinstance(module, FastEdgeConv):
                 module.edges_per_chunk = spec["edges_per_chunk"]
     optimizer = torch.optim.Adam(model.parameters(), lr=6e-4)
     gen = torch.Generator().manual_seed(0)
     normals = F.normalize(torch.randn(spec["batch"], spec["points"], 3, generator=gen), dim=-1)
     points = 0.8 * normals
-    reference = spec["variant"] == "reference"
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
     def step() -> tuple[float, float]:
         start, start_cpu = time.perf_counter(), time.process_time()
         optimizer.zero_grad(set_to_none=True)
-        out = model(points, reference=reference)
+        out = model(points)
         loss = total_loss(out, points, normals, LossConfig(), generator=gen).total
         loss.backward()
         optimizer.step()
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cuboids", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=7, help="timed steps per configuration (median reported)")
     parser.add_argument("--warmup", type=int, default=2)
-    parser.add_argument("--variant", nargs="+", choices=["fast", "reference"], default=["fast"])
+    parser.add_argument("--variant", nargs="+", choices=["fast", "readable"], default=["fast"])
     parser.add_argument("--config", choices=["paper", "small"], default="paper", help="ModelConfig() or .small()")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--edges-per-chunk", type=int, default=0, help="EdgeConv chunk size (0: the default)")

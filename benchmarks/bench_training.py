@@ -44,7 +44,7 @@ def worker(spec: dict) -> None:
     import torch
     import torch.nn.functional as F
 
-    from cuboidlib.losses import LossConfig, total_loss
+    from cuboidlib.losses import total_loss
     from cuboidlib.model import CuboidAbstractionNet
     from cuboidlib.train import TrainConfig
 

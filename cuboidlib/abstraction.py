@@ -38,7 +38,67 @@ from .export import (
 from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
 
-__all__ = ["Abstraction", "abstract", "result_files", "frame_rotation", "AXES"]
+__all__ = ["Abstraction", "AbstractionBatch", "abstract", "result_files", "frame_rotation", "AXES"]
+
+
+@dataclass
+class AbstractionBatch:
+    """Cuboids and segmentations of B shapes, as every method makes them (network, fit, k-means boxes).
+
+    The batch form of :class:`Abstraction`, in the coordinates the shapes were given in (normalised
+    ones for a network). Fields that a method does not produce are None.
+
+    cuboids: :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) with ``exists`` (B, M).
+    labels: (B, N) long, each point's cuboid, in [0, M) and always an existing one (the
+      segmentation), or None when no points were given (shapes decoded from latent codes).
+    W: (B, N, M) the soft allocation of the points to the cuboids (Eq. 3), or None.
+    exist_probs: (B, M) existence probabilities (the network's delta_m), or None.
+    z: (B, latent_dim) the network's latent codes, or None.
+
+    Example::
+
+        >>> batch = abstract_shapes(model, points)            # points (B, N, 3), normalised
+        >>> batch.num_existing(), batch.labels.shape          # (B,), (B, N)
+        >>> one = batch.item(0, points=points[0])             # an Abstraction, ready to save
+    """
+
+    cuboids: Cuboids
+    labels: torch.Tensor | None = None
+    W: torch.Tensor | None = None
+    exist_probs: torch.Tensor | None = None
+    z: torch.Tensor | None = None
+
+    def __len__(self) -> int:
+        return self.cuboids.batch_size
+
+    @property
+    def num_segments(self) -> int:
+        """M, the number of cuboid slots (segment indices lie in [0, M))."""
+        return self.cuboids.num_cuboids
+
+    def num_existing(self) -> torch.Tensor:
+        """(B,) long, the number of existing cuboids of every shape."""
+        return self.cuboids.exists.sum(dim=1)
+
+    def item(self, i: int, **fields) -> "Abstraction":
+        """Shape ``i`` as an :class:`Abstraction` (``fields``: its other fields, e.g. points, center, scale)."""
+        c = self.cuboids
+        one = Cuboids(c.centers[i:i + 1], c.quaternions[i:i + 1], c.half_sizes[i:i + 1], c.exists[i:i + 1],
+                      validate=False).to(device="cpu")
+        labels = None if self.labels is None else self.labels[i].cpu().numpy()
+        return Abstraction(one, labels=labels, **fields)
+
+    @staticmethod
+    def concatenate(parts: "list[AbstractionBatch]") -> "AbstractionBatch":
+        """The shapes of several batches in one (a field is kept only if every part has it)."""
+        def cat(get):
+            values = [get(d) for d in parts]
+            return None if any(v is None for v in values) else torch.cat(values)
+
+        cuboids = Cuboids(cat(lambda d: d.cuboids.centers), cat(lambda d: d.cuboids.quaternions),
+                          cat(lambda d: d.cuboids.half_sizes), cat(lambda d: d.cuboids.exists), validate=False)
+        return AbstractionBatch(cuboids, cat(lambda d: d.labels), cat(lambda d: d.W), cat(lambda d: d.exist_probs),
+                                cat(lambda d: d.z))
 
 
 @dataclass
@@ -296,7 +356,7 @@ def _by_network(shape, model, n_points, seed, threshold, centers, device, rotati
     """The network branch of :func:`abstract`: (point cloud, cuboids, segmentation, method)."""
     from .applications import abstract_shapes, load_trained_model
     from .model import CuboidAbstractionNet
-    from .train import resolve_device
+    from .config import resolve_device
 
     if isinstance(model, CuboidAbstractionNet):
         net, state, path = model, {}, None

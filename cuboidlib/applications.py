@@ -53,10 +53,10 @@ from ._checks import as_float_tensor, check_finite, check_shape
 from .checkpoint import load_model
 from .geometry import Cuboids
 from .losses import allocation_weighted_centers
+from .abstraction import AbstractionBatch
 from .model import CuboidAbstractionNet
 
 __all__ = [
-    "DecodedShapes",
     "existence_mask",
     "decode_latents",
     "generate_shapes",
@@ -85,43 +85,6 @@ CHECKPOINT_DIR_ENV = "CUBOIDLIB_CHECKPOINTS"
 # ----------------------------------------------------------------------------------------------
 # Decoding
 # ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class DecodedShapes:
-    """Cuboids decoded by the network for B shapes (normalised coordinates).
-
-    cuboids: :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) whose ``exists`` (B, M) is
-      :func:`existence_mask` of the probabilities.
-    exist_probs: (B, M) existence probabilities delta_m = sigmoid(logit).
-    z: (B, latent_dim) the latent codes that were decoded.
-    labels: (B, N) long, each input point's cuboid (argmax of the allocation W over the EXISTING
-      cuboids), or None when no points were given (generation, interpolation).
-    W: (B, N, M) the allocation of the input points (Eq. 3), or None.
-    """
-
-    cuboids: Cuboids
-    exist_probs: torch.Tensor
-    z: torch.Tensor
-    labels: torch.Tensor | None = None
-    W: torch.Tensor | None = None
-
-    def __len__(self) -> int:
-        return self.cuboids.batch_size
-
-    def num_existing(self) -> torch.Tensor:
-        """(B,) long, the number of existing cuboids of every shape."""
-        return self.cuboids.exists.sum(dim=1)
-
-
-def _concatenate(parts: list[DecodedShapes]) -> DecodedShapes:
-    """The shapes of several :class:`DecodedShapes` in one (labels and W kept only if all have them)."""
-    cat = lambda get: torch.cat([get(d) for d in parts])  # noqa: E731
-    cuboids = Cuboids(cat(lambda d: d.cuboids.centers), cat(lambda d: d.cuboids.quaternions),
-                      cat(lambda d: d.cuboids.half_sizes), cat(lambda d: d.cuboids.exists), validate=False)
-    with_points = all(d.labels is not None for d in parts)
-    return DecodedShapes(cuboids, cat(lambda d: d.exist_probs), cat(lambda d: d.z),
-                         cat(lambda d: d.labels) if with_points else None, cat(lambda d: d.W) if with_points else None)
 
 
 def existence_mask(exist_probs: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
@@ -155,10 +118,10 @@ def _evaluating(model: CuboidAbstractionNet) -> Iterator[None]:
         model.train(was_training)
 
 
-def decode_latents(model: CuboidAbstractionNet, z, threshold: float = 0.5) -> DecodedShapes:
+def decode_latents(model: CuboidAbstractionNet, z, threshold: float = 0.5) -> AbstractionBatch:
     """Decode latent codes z (B, latent_dim) into cuboids with existence (Sec. 3.2).
 
-    Returns :class:`DecodedShapes` (labels and W are None). Deterministic: the same z gives the same
+    Returns :class:`AbstractionBatch` (labels and W are None). Deterministic: the same z gives the same
     cuboids.
     """
     with _evaluating(model):
@@ -167,7 +130,7 @@ def decode_latents(model: CuboidAbstractionNet, z, threshold: float = 0.5) -> De
         probs = pred.exist_probs
         exists = existence_mask(probs, threshold)
         cuboids = Cuboids(pred.centers, pred.quaternions, pred.half_sizes, exists)
-    return DecodedShapes(cuboids, probs, z)
+    return AbstractionBatch(cuboids, exist_probs=probs, z=z)
 
 
 def generate_shapes(
@@ -175,11 +138,11 @@ def generate_shapes(
     n_shapes: int,
     generator: torch.Generator | None = None,
     threshold: float = 0.5,
-) -> DecodedShapes:
+) -> AbstractionBatch:
     """Shape generation (Sec. 4.4, Fig. 12): decode ``n_shapes`` codes z ~ N(0, I).
 
     The codes are drawn on the CPU from ``generator`` (repeatable with a seeded generator) and
-    moved to the model's device. Returns :class:`DecodedShapes` with B = n_shapes.
+    moved to the model's device. Returns :class:`AbstractionBatch` with B = n_shapes.
     """
     if isinstance(n_shapes, bool) or not isinstance(n_shapes, int) or n_shapes < 1:
         raise ValueError(f"n_shapes must be a positive integer, got {n_shapes!r}")
@@ -225,22 +188,23 @@ def abstract_shapes(
     threshold: float = 0.5,
     centers_from_allocation: bool = False,
     batch_size: int = 32,
-) -> DecodedShapes:
+) -> AbstractionBatch:
     """Cuboid abstraction and segmentation of point clouds by the network (z = mu, Sec. 3).
 
     points: (B, N, 3) or (N, 3), normalised like the training shapes, run ``batch_size`` shapes at a
     time (evaluation mode: the result does not depend on the batching). ``centers_from_allocation``
     places every cuboid at the allocation-weighted centroid of its points
     (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained that way.
-    Returns :class:`DecodedShapes` with labels (B, N) (argmax of W over the existing cuboids) and W.
+    Returns :class:`AbstractionBatch` with labels (B, N) (argmax of W over the existing cuboids) and W.
     The existence vectors ``cuboids.exists`` of a collection are what :func:`cluster_by_existence` groups.
     """
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
     p = _as_batch(points, "points").to(next(model.parameters()))
     if p.shape[0] > batch_size:
-        return _concatenate([abstract_shapes(model, chunk, threshold, centers_from_allocation, batch_size)
-                             for chunk in p.split(batch_size)])
+        parts = [abstract_shapes(model, chunk, threshold, centers_from_allocation, batch_size)
+                 for chunk in p.split(batch_size)]
+        return AbstractionBatch.concatenate(parts)
     with _evaluating(model):
         out = model(p, sample_latent=False)
         probs = out.exist_probs
@@ -248,7 +212,7 @@ def abstract_shapes(
         centers = allocation_weighted_centers(out.W, p) if centers_from_allocation else out.centers
         cuboids = Cuboids(centers, out.quaternions, out.half_sizes, exists)
         labels = out.W.masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1)
-    return DecodedShapes(cuboids, probs, out.z, labels, out.W)
+    return AbstractionBatch(cuboids, labels, out.W, probs, out.z)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -285,13 +249,13 @@ def cuboid_step_changes(cuboids: Cuboids) -> tuple[torch.Tensor, torch.Tensor]:
 class Interpolation:
     """A decoded interpolation path of K steps (Sec. 4.4, Fig. 13).
 
-    t: (K,) interpolation weights from 0 to 1; shapes: :class:`DecodedShapes` (K, M) with
+    t: (K,) interpolation weights from 0 to 1; shapes: :class:`AbstractionBatch` (K, M) with
     ``shapes.z[k] = (1 - t_k) z_a + t_k z_b``; step_change (K - 1,) and existence_changes (K - 1,)
     from :func:`cuboid_step_changes`.
     """
 
     t: torch.Tensor
-    shapes: DecodedShapes
+    shapes: AbstractionBatch
     step_change: torch.Tensor
     existence_changes: torch.Tensor
 
@@ -330,7 +294,7 @@ def interpolate_codes(
     z_a, z_b = codes
     t = torch.linspace(0.0, 1.0, steps, dtype=z_a.dtype)
     t[0], t[-1] = 0.0, 1.0
-    shapes = _concatenate([decode_latents(model, ((1 - tk) * z_a + tk * z_b)[None], threshold) for tk in t])
+    shapes = AbstractionBatch.concatenate([decode_latents(model, ((1 - tk) * z_a + tk * z_b)[None], threshold) for tk in t])
     step_change, flips = cuboid_step_changes(shapes.cuboids)
     return Interpolation(t, shapes, step_change, flips)
 

@@ -11,47 +11,60 @@ with a batch of one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from .abstraction import AbstractionBatch
 from .geometry import Cuboids, rotation_matrix_to_quaternion
 
-__all__ = ["kmeans", "oriented_bounding_box", "ClusterBoxes", "fit_cluster_boxes"]
+__all__ = ["kmeans", "oriented_bounding_box", "fit_cluster_boxes"]
 
 
-def kmeans(features, k: int, iterations: int = 50, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Lloyd's k-means with k-means++ seeding.
+def kmeans(features, k: int, iterations: int = 50,
+           generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Lloyd's k-means with k-means++ seeding, for one point set or a batch of them.
 
-    features: (N, D). Returns (labels (N,) long, centroids (k, D)). Deterministic given ``generator``.
-    A cluster that loses all its points keeps its previous centroid.
+    features: (N, D), or (B, N, D) for B independent sets with N >= k points each. Returns (labels
+    (N,) or (B, N) long, centroids (k, D) or (B, k, D)). The seeds are drawn from ``generator`` only
+    (deterministic given it); a cluster that loses all its points keeps its previous centroid; the
+    iterations stop early once no label changes. Used by the k-means boxes below and to start the
+    per-shape fit (:func:`cuboidlib.fitting.initial_cuboids`).
+
+    Example::
+
+        >>> labels, centroids = kmeans(torch.rand(100, 3), 4, generator=torch.Generator().manual_seed(0))
+        >>> labels.shape, centroids.shape
+        (torch.Size([100]), torch.Size([4, 3]))
     """
     x = as_float_tensor(features, "features")
-    check_shape(x, ("N", "D"), "features")
+    single = x.dim() == 2
+    if single:
+        x = x[None]
+    check_shape(x, ("B", "N", "D"), "features")
     check_finite(x, "features")
-    n = x.shape[0]
-    if not (isinstance(k, int) and 1 <= k <= n):
+    b, n, _ = x.shape
+    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= n:
         raise ValueError(f"k must be an integer between 1 and the number of points {n}, got {k!r}")
-    first = int(torch.randint(n, (1,), generator=generator))
-    centroids = [x[first]]
-    nearest = (x - x[first]).square().sum(dim=1)
+    batch = torch.arange(b, device=x.device)
+    first = torch.randint(n, (b,), generator=generator).to(x.device)
+    centroids = [x[batch, first]]
+    nearest = (x - centroids[0][:, None]).square().sum(-1)  # (B, N) squared distance to the nearest seed
     for _ in range(1, k):  # k-means++: next seed with probability proportional to the squared distance
-        weights = nearest if nearest.sum() > 0 else torch.ones_like(nearest)
-        pick = int(torch.multinomial(weights, 1, generator=generator))
-        centroids.append(x[pick])
-        nearest = torch.minimum(nearest, (x - x[pick]).square().sum(dim=1))
-    c = torch.stack(centroids)
-    labels = torch.cdist(x, c).argmin(dim=1)
+        weights = torch.where(nearest.sum(-1, keepdim=True) > 0, nearest, torch.ones_like(nearest))
+        pick = torch.multinomial(weights.cpu(), 1, generator=generator)[:, 0].to(x.device)
+        centroids.append(x[batch, pick])
+        nearest = torch.minimum(nearest, (x - centroids[-1][:, None]).square().sum(-1))
+    c = torch.stack(centroids, dim=1)  # (B, k, D)
+    labels = torch.cdist(x, c).argmin(dim=-1)
     for _ in range(iterations):
-        sums = torch.zeros_like(c).index_add_(0, labels, x)
-        counts = torch.bincount(labels, minlength=k).to(x.dtype)[:, None]
-        c = torch.where(counts > 0, sums / counts.clamp_min(1), c)
-        new_labels = torch.cdist(x, c).argmin(dim=1)
+        one_hot = torch.nn.functional.one_hot(labels, k).to(x.dtype)  # (B, N, k)
+        counts = one_hot.sum(dim=1)[..., None]  # (B, k, 1)
+        c = torch.where(counts > 0, torch.einsum("bnk,bnd->bkd", one_hot, x) / counts.clamp_min(1), c)
+        new_labels = torch.cdist(x, c).argmin(dim=-1)
         if torch.equal(new_labels, labels):
             break
         labels = new_labels
-    return labels, c
+    return (labels[0], c[0]) if single else (labels, c)
 
 
 def oriented_bounding_box(points, min_half_size: float = 1e-3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -82,23 +95,16 @@ def oriented_bounding_box(points, min_half_size: float = 1e-3) -> tuple[torch.Te
     return center, rotation_matrix_to_quaternion(axes, validate=False), half
 
 
-@dataclass
-class ClusterBoxes:
-    """Result of :func:`fit_cluster_boxes`: the boxes (batch of one) and each point's cluster index (N,)."""
-
-    cuboids: Cuboids
-    labels: torch.Tensor
-
-
 def fit_cluster_boxes(points, normals, num_boxes: int, normal_weight: float = 0.2, iterations: int = 50,
-                      seed: int = 0) -> ClusterBoxes:
+                      seed: int = 0) -> AbstractionBatch:
     """The k-means + oriented-box baseline for one shape.
 
     points, normals: (N, 3). k-means runs on the features [p, normal_weight * n] (positions of a
     unit-diagonal shape span about 1, so the default lets normals split a cluster only where
     orientation changes sharply), then each cluster gets :func:`oriented_bounding_box`.
-    Returns :class:`ClusterBoxes` with ``num_boxes`` existing cuboids (fewer if there are fewer
-    distinct points).
+    Returns an :class:`~cuboidlib.abstraction.AbstractionBatch` of one shape: M = ``num_boxes``
+    cuboid slots, of which those of non-empty clusters exist (all, unless there are fewer distinct
+    points than boxes), and ``labels`` (1, N), each point's cluster (an existing slot).
     """
     p = as_float_tensor(points, "points")
     n = as_float_tensor(normals, "normals").to(p)
@@ -112,8 +118,11 @@ def fit_cluster_boxes(points, normals, num_boxes: int, normal_weight: float = 0.
     g = torch.Generator().manual_seed(seed)
     labels, _ = kmeans(torch.cat([p, normal_weight * n], dim=1), num_boxes, iterations, generator=g)
     used = torch.unique(labels)
-    boxes = [oriented_bounding_box(p[labels == c]) for c in used.tolist()]
-    centers, quats, halves = (torch.stack(parts)[None] for parts in zip(*boxes))
-    relabel = torch.full((num_boxes,), -1, dtype=torch.long)
-    relabel[used] = torch.arange(len(used))
-    return ClusterBoxes(Cuboids(centers, quats, halves), relabel[labels])
+    centers = torch.zeros(num_boxes, 3, dtype=p.dtype)
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=p.dtype).repeat(num_boxes, 1)
+    halves = torch.full((num_boxes, 3), 1e-3, dtype=p.dtype)
+    exists = torch.zeros(num_boxes, dtype=torch.bool)
+    for c in used.tolist():
+        centers[c], quats[c], halves[c] = oriented_bounding_box(p[labels == c])
+        exists[c] = True
+    return AbstractionBatch(Cuboids(centers[None], quats[None], halves[None], exists[None]), labels[None])

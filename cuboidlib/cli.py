@@ -130,7 +130,8 @@ def _train_config_from_args(args):
     from .checkpoint import load_checkpoint
     from .losses import LossConfig
     from .model import ModelConfig
-    from .train import TrainConfig, read_config_file
+    from .config import read_config_file
+    from .train import TrainConfig
 
     last = Path(args.out) / "last.pt"
     data = load_checkpoint(last)["config"] if args.resume and last.is_file() else TrainConfig().to_dict()
@@ -258,7 +259,9 @@ def _cmd_evaluate(args) -> int:
     from .applications import load_trained_model
     from .evaluation import evaluate_baseline, evaluate_model, format_table
     from .metrics import ChamferConvention
-    from .train import TrainConfig, load_splits, resolve_device
+    from .config import resolve_device
+    from .dataset import load_splits
+    from .train import TrainConfig
 
     model, state, _ = load_trained_model(args.checkpoint, resolve_device(args.device))
     config = TrainConfig.from_dict(state["config"])
@@ -601,7 +604,7 @@ def _cmd_generate(args) -> int:
     import torch
 
     from .applications import generate_shapes, load_trained_model
-    from .train import resolve_device
+    from .config import resolve_device
 
     start = time.perf_counter()
     _check_out_dir(args)
@@ -643,7 +646,7 @@ def _cmd_interpolate(args) -> int:
     from pathlib import Path
 
     from .applications import interpolate_latents, load_trained_model
-    from .train import resolve_device
+    from .config import resolve_device
 
     start = time.perf_counter()
     if args.steps < 2:

@@ -1,4 +1,13 @@
-"""A torch ``Dataset`` over procedural collections or point-cloud / mesh files.
+"""The data: a torch ``Dataset`` over procedural collections or files, in-memory shape sets, splits.
+
+:class:`PointCloudDataset` reads one shape at a time; :class:`ShapeSet` holds many as stacked
+tensors (what training and evaluation use), :func:`split_indices` assigns shapes to train /
+validation / test by a seeded permutation, and :func:`load_splits` does both for a
+:class:`~cuboidlib.train.TrainConfig` (a procedural collection or a folder of files).
+:func:`add_noise` / :func:`noisy_splits` jitter the points as the paper's noise experiment does
+(Table 4).
+
+The ``Dataset``:
 
 Each item is a dict of tensors: ``"points"`` (N, 3) float32, ``"normals"`` (N, 3) float32,
 ``"labels"`` (N,) int64 when the part labels are known, ``"index"`` (the shape's index in the
@@ -18,15 +27,20 @@ stacks them into the batch-first (B, N, 3) tensors the model expects.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 import torch
 
+from .config import derive_seed
 from .io import (
+    MESH_SUFFIXES,
+    POINT_CLOUD_SUFFIXES,
     PointCloud,
     authors_layout_files,
     is_mesh_file,
@@ -34,9 +48,17 @@ from .io import (
     shapenet_part_files,
     shapenet_part_labels,
 )
-from .shapes import ShapeCollection
+from .shapes import PART_NAMES, ShapeCollection
 
-__all__ = ["PAPER_ROTATIONS_DEG", "PointCloudDataset", "rotate_about_y"]
+if TYPE_CHECKING:
+    from .train import TrainConfig
+
+__all__ = [
+    "PAPER_ROTATIONS_DEG", "PointCloudDataset", "rotate_about_y", "ShapeSet", "split_indices", "load_shapes",
+    "load_splits",
+    "add_noise",
+    "noisy_splits",
+]
 
 #: The paper's augmentation angles for the animal set (degrees about the up axis), Sec. 4.1.
 PAPER_ROTATIONS_DEG: tuple[float, ...] = (-10.0, -5.0, 0.0, 5.0, 10.0)
@@ -184,3 +206,163 @@ class PointCloudDataset(torch.utils.data.Dataset):
         if self.collection is not None:
             out["structure_id"] = torch.tensor(int(self.collection.structure_ids[shape_index]))
         return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Data
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ShapeSet:
+    """Shapes held in memory: points, normals (S, N, 3) float32, labels (S, N) int64 or None.
+
+    indices (S,): each shape's index in its source (collection or sorted file list); part_names:
+    the names of the part labels (None when unknown); num_parts: the number of part labels.
+    """
+
+    points: torch.Tensor
+    normals: torch.Tensor
+    labels: torch.Tensor | None
+    indices: torch.Tensor
+    part_names: tuple[str, ...] | None = None
+    num_parts: int | None = None
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def subset(self, index: torch.Tensor) -> "ShapeSet":
+        """The shapes at positions ``index`` (a 1-D int64 tensor)."""
+        return ShapeSet(
+            self.points[index], self.normals[index], None if self.labels is None else self.labels[index],
+            self.indices[index], self.part_names, self.num_parts,
+        )
+
+    def to(self, device: torch.device | str) -> "ShapeSet":
+        return ShapeSet(
+            self.points.to(device), self.normals.to(device), None if self.labels is None else self.labels.to(device),
+            self.indices, self.part_names, self.num_parts,
+        )
+
+
+def split_indices(n: int, fractions: tuple[float, float, float], seed: int) -> dict[str, torch.Tensor]:
+    """Assign ``n`` shapes to "train", "val" and "test" by a permutation seeded with ``seed``.
+
+    Sizes: validation round(n * f_val) (at least 1), test round(n * f_test) (at least 1 if
+    f_test > 0), train the rest (at least 1). Returns sorted int64 index tensors; the same
+    (n, fractions, seed) always gives the same split.
+    """
+    _, f_val, f_test = fractions
+    n_val = max(1, round(n * f_val))
+    n_test = max(1, round(n * f_test)) if f_test > 0 else 0
+    n_train = n - n_val - n_test
+    if n_train < 1:
+        raise ValueError(
+            f"{n} shapes are too few for the split fractions {tuple(fractions)}: no training shape is left"
+        )
+    perm = torch.randperm(n, generator=torch.Generator().manual_seed(derive_seed(seed)))
+    parts = torch.split(perm, [n_train, n_val, n_test])
+    return {name: part.sort().values for name, part in zip(("train", "val", "test"), parts)}
+
+
+def _data_files(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such data folder")
+    suffixes = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    if not files:
+        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})")
+    return files
+
+
+def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
+    """All shapes of the configured data source as one :class:`ShapeSet` (before splitting)."""
+    from .shapes import make_collection
+
+    if config.data_dir is None:
+        collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
+                                     progress=progress)
+        dataset = PointCloudDataset(collection)
+        part_names = PART_NAMES[config.category]
+    else:
+        dataset = PointCloudDataset(_data_files(Path(config.data_dir)), n_points=config.n_points, seed=config.data_seed)
+        part_names = None
+    items = [dataset[i] for i in range(len(dataset))]
+    sizes = {int(item["points"].shape[0]) for item in items}
+    if len(sizes) > 1:
+        raise ValueError(f"the shapes have different numbers of points {sorted(sizes)}; set n_points to batch them")
+    has_labels = all("labels" in item for item in items)
+    labels = torch.stack([item["labels"] for item in items]) if has_labels else None
+    num_parts = None
+    if labels is not None:
+        num_parts = len(part_names) if part_names is not None else int(labels.max()) + 1
+        if labels.min() < 0 or labels.max() >= num_parts:
+            raise ValueError(
+                f"part labels must lie in [0, {num_parts}), got [{int(labels.min())}, {int(labels.max())}]"
+            )
+    return ShapeSet(
+        torch.stack([item["points"] for item in items]),
+        torch.stack([item["normals"] for item in items]),
+        labels,
+        torch.stack([item["index"] for item in items]),
+        part_names,
+        num_parts,
+    )
+
+
+def load_splits(config: "TrainConfig", progress: bool = False) -> dict[str, ShapeSet]:
+    """The "train", "val" and "test" :class:`ShapeSet` of a configuration (see :func:`split_indices`)."""
+    shapes = load_shapes(config, progress)
+    return {name: shapes.subset(idx) for name, idx in split_indices(len(shapes), config.split_fractions,
+                                                                    config.split_seed).items()}
+
+
+def resolve_device(name: str) -> torch.device:
+    """"auto" -> CUDA when available, else CPU; otherwise ``torch.device(name)`` (CUDA must exist)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}") from exc
+    if device.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
+    return device
+
+
+# ----------------------------------------------------------------------------------------------
+# Input noise (Table 4 of the paper)
+# ----------------------------------------------------------------------------------------------
+
+
+def add_noise(points: torch.Tensor, sigma_n: float, seed: int) -> torch.Tensor:
+    """Input noise of Table 4: ``points + sigma_n * e`` with e ~ N(0, I_3) drawn independently per point.
+
+    The jitter is isotropic: a uniformly random direction with a chi(3)-distributed length, each
+    coordinate with standard deviation ``sigma_n`` (variance sigma_n^2, as in the paper). It comes
+    from a generator seeded with ``seed`` (the same seed gives the same jitter; for a fixed seed the
+    noise levels differ only by the factor sigma_n). points: (..., 3) float; returns a new tensor of
+    the same shape. The normals are not touched: they stay those of the clean surface.
+    """
+    if not isinstance(points, torch.Tensor) or not points.is_floating_point() or points.shape[-1:] != (3,):
+        raise ValueError(f"points must be a float tensor of shape (..., 3), got {getattr(points, 'shape', points)!r}")
+    if not (isinstance(sigma_n, (int, float)) and math.isfinite(sigma_n) and sigma_n >= 0):
+        raise ValueError(f"sigma_n must be a finite non-negative number, got {sigma_n!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    generator = torch.Generator().manual_seed(seed)
+    e = torch.randn(points.shape, generator=generator, dtype=points.dtype)
+    return points + sigma_n * e.to(points.device)
+
+
+def _noise_seed(data_seed: int, split: str) -> int:
+    return int(np.random.SeedSequence([data_seed, ("train", "val", "test").index(split), 5]).generate_state(1)[0])
+
+
+def noisy_splits(splits: dict[str, ShapeSet], sigma_n: float, data_seed: int) -> dict[str, ShapeSet]:
+    """Every split with :func:`add_noise` on its points (one seed per split, derived from ``data_seed``);
+    normals, labels and indices unchanged. The noise is drawn once: every epoch sees the same noisy clouds."""
+    return {name: dataclasses.replace(s, points=add_noise(s.points, sigma_n, _noise_seed(data_seed, name)))
+            for name, s in splits.items()}

@@ -1,6 +1,6 @@
 """Scoring a trained network or the k-means baseline on a split of shapes (Sec. 4.1-4.2).
 
-:func:`evaluate_model` runs the network on a :class:`~cuboidlib.train.ShapeSet` and
+:func:`evaluate_model` runs the network on a :class:`~cuboidlib.dataset.ShapeSet` and
 :func:`evaluate_baseline` fits the k-means + oriented-box baseline (:mod:`cuboidlib.baseline`) to
 each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), which
 :func:`format_table` prints together with the conventions behind every number:
@@ -30,12 +30,12 @@ cuboid (counted in ``shapes_without_existing_cuboid``); N_AC counts the cuboids 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 import torch
 
+from .abstraction import AbstractionBatch
 from .applications import abstract_shapes
 from .baseline import fit_cluster_boxes
 from .metrics import (
@@ -48,11 +48,10 @@ from .metrics import (
     segment_box_distance,
     transfer_part_labels,
 )
+from .dataset import ShapeSet
 from .model import CuboidAbstractionNet
-from .train import ShapeSet
 
 __all__ = [
-    "CuboidPredictions",
     "predict_cuboids",
     "label_transfer_split",
     "score_cuboids",
@@ -63,28 +62,13 @@ __all__ = [
 ]
 
 
-@dataclass
-class CuboidPredictions:
-    """Cuboids of S shapes: centers (S, M, 3), quaternions (S, M, 4), half_sizes (S, M, 3), exists
-    (S, M) bool, segmentation (S, N) int64 (segment index of every input point, in [0, M))."""
-
-    centers: torch.Tensor
-    quaternions: torch.Tensor
-    half_sizes: torch.Tensor
-    exists: torch.Tensor
-    segmentation: torch.Tensor
-
-    @property
-    def num_segments(self) -> int:
-        return int(self.centers.shape[1])
-
-
 def predict_cuboids(
     model: CuboidAbstractionNet, shapes: ShapeSet, batch_size: int = 32, centers_from_allocation: bool = False
-) -> tuple[CuboidPredictions, int]:
+) -> tuple[AbstractionBatch, int]:
     """Run the network in evaluation mode (z = mu) on every shape (:func:`cuboidlib.applications.abstract_shapes`).
 
-    Returns the predictions (on the CPU; a cuboid exists when its existence probability exceeds
+    Returns the predictions (an :class:`~cuboidlib.abstraction.AbstractionBatch` on the CPU whose
+    ``labels`` are the segmentation; a cuboid exists when its existence probability exceeds
     0.5, and a shape with none keeps its most probable cuboid, :func:`existence_mask`; every point
     is segmented to its most allocated existing cuboid) and the number of shapes that needed that
     fallback. ``centers_from_allocation``: place each cuboid at the allocation-weighted centroid of
@@ -93,10 +77,8 @@ def predict_cuboids(
     authors' code), whose translation head the losses never see.
     """
     out = abstract_shapes(model, shapes.points, 0.5, centers_from_allocation, batch_size)
-    cuboids = out.cuboids.to(device="cpu")
     empty = ~(out.exist_probs > 0.5).any(dim=1)
-    pred = CuboidPredictions(cuboids.centers, cuboids.quaternions, cuboids.half_sizes, cuboids.exists,
-                             out.labels.cpu())
+    pred = AbstractionBatch(out.cuboids.to(device="cpu"), out.labels.cpu(), exist_probs=out.exist_probs.cpu())
     return pred, int(empty.sum())
 
 
@@ -119,7 +101,7 @@ def _shape_generator(seed: int, shape: int) -> torch.Generator:
 
 def score_cuboids(
     shapes: ShapeSet,
-    pred: CuboidPredictions,
+    pred: AbstractionBatch,
     label_transfer_fraction: float = 0.2,
     conventions: Sequence[ChamferConvention] = (ChamferConvention(),),
     seed: int = 0,
@@ -135,8 +117,8 @@ def score_cuboids(
         raise ValueError("give at least one Chamfer convention")
     n = len(shapes)
     points, normals = shapes.points.cpu(), shapes.normals.cpu()
-    cuboids = lambda i: (pred.centers[i:i + 1], pred.quaternions[i:i + 1], pred.half_sizes[i:i + 1],  # noqa: E731
-                         pred.exists[i:i + 1])
+    c = pred.cuboids
+    cuboids = lambda i: (c.centers[i:i + 1], c.quaternions[i:i + 1], c.half_sizes[i:i + 1], c.exists[i:i + 1])  # noqa: E731
     chamfer = []
     for convention in conventions:
         values = torch.cat([
@@ -162,7 +144,7 @@ def score_cuboids(
     }
 
 
-def segmentation_scores(shapes: ShapeSet, pred: CuboidPredictions, label_transfer_fraction: float = 0.2,
+def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer_fraction: float = 0.2,
                         seed: int = 0) -> dict:
     """The scores of the segmentation alone (no surface sampling, cheap enough to run during training).
 
@@ -172,10 +154,10 @@ def segmentation_scores(shapes: ShapeSet, pred: CuboidPredictions, label_transfe
     :func:`~cuboidlib.metrics.segment_box_distance`; None when the segmentation is of other points than
     ``shapes``, as when cuboids are scored against a denser sampling) and ``n_ac``.
     """
-    seg = pred.segmentation.cpu()
+    seg, c = pred.labels.cpu(), pred.cuboids
     box = None
     if seg.shape == shapes.points.shape[:2]:  # scored on the points that were segmented (not another density)
-        box = segment_box_distance(shapes.points.cpu(), seg, pred.centers, pred.quaternions, pred.half_sizes)
+        box = segment_box_distance(shapes.points.cpu(), seg, c.centers, c.quaternions, c.half_sizes)
     miou, transfer, per_part = None, None, None
     if shapes.labels is not None:
         labelled, scored = label_transfer_split(len(shapes), label_transfer_fraction, seed)
@@ -190,7 +172,7 @@ def segmentation_scores(shapes: ShapeSet, pred: CuboidPredictions, label_transfe
                     "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
     return {"miou": miou, "part_iou": per_part, "label_transfer": transfer,
             "box_distance": None if box is None else float(box.double().mean()),
-            "n_ac": float(number_of_existing_cuboids(pred.exists))}
+            "n_ac": float(number_of_existing_cuboids(c.exists))}
 
 
 def evaluate_model(
@@ -230,19 +212,8 @@ def evaluate_baseline(
     segment index for the label transfer (indices do not correspond across shapes)."""
     if not (isinstance(num_boxes, int) and num_boxes >= 1):
         raise ValueError(f"num_boxes must be a positive integer, got {num_boxes!r}")
-    fits = [fit_cluster_boxes(p, nrm, num_boxes, normal_weight=normal_weight, seed=seed)
-            for p, nrm in zip(shapes.points.cpu(), shapes.normals.cpu())]
-    s, m = len(fits), num_boxes
-    centers = torch.zeros(s, m, 3)
-    quaternions = torch.zeros(s, m, 4)
-    quaternions[..., 0] = 1.0
-    half_sizes = torch.full((s, m, 3), 1e-3)
-    exists = torch.zeros(s, m, dtype=torch.bool)
-    for i, fit in enumerate(fits):
-        k = fit.cuboids.num_cuboids
-        centers[i, :k], quaternions[i, :k] = fit.cuboids.centers[0], fit.cuboids.quaternions[0]
-        half_sizes[i, :k], exists[i, :k] = fit.cuboids.half_sizes[0], True
-    pred = CuboidPredictions(centers, quaternions, half_sizes, exists, torch.stack([f.labels for f in fits]))
+    pred = AbstractionBatch.concatenate([fit_cluster_boxes(p, nrm, num_boxes, normal_weight=normal_weight, seed=seed)
+                                         for p, nrm in zip(shapes.points.cpu(), shapes.normals.cpu())])
     result = {"method": f"k-means boxes (K={num_boxes})", "num_cuboids": num_boxes}
     result.update(score_cuboids(shapes, pred, label_transfer_fraction, conventions, seed))
     result["shapes_without_existing_cuboid"] = 0

@@ -59,6 +59,8 @@ import torch
 from tqdm import tqdm
 
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
+from .abstraction import AbstractionBatch
+from .baseline import kmeans
 from .distance import nearest_surface_distance, point_to_cuboid_distance
 from .geometry import Cuboids, standardize_quaternion
 from .losses import (
@@ -163,9 +165,10 @@ class FitConfig:
         return FitConfig(**{**asdict(self), **changes})
 
 
-@dataclass
-class FitResult:
-    """What :func:`fit_cuboids` returns. Always batch-first: a single (N, 3) cloud gives B = 1.
+@dataclass(kw_only=True)
+class FitResult(AbstractionBatch):
+    """What :func:`fit_cuboids` returns: an :class:`~cuboidlib.abstraction.AbstractionBatch` (always
+    batch-first: a single (N, 3) cloud gives B = 1) plus the record of the optimisation.
 
     cuboids: the fitted :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) in the input's coordinates,
       with ``exists`` (B, M) set to the read-out w_m > eps_ext (the cuboid with the largest w_m always
@@ -184,9 +187,6 @@ class FitResult:
     config: the :class:`FitConfig` used.
     """
 
-    cuboids: Cuboids
-    labels: torch.Tensor
-    W: torch.Tensor
     portions: torch.Tensor
     initial: Cuboids
     history: dict[str, list[float]]
@@ -199,10 +199,6 @@ class FitResult:
     def exists(self) -> torch.Tensor:
         """(B, M) bool existence mask (the same as ``cuboids.exists``)."""
         return self.cuboids.exists
-
-    def num_existing(self) -> torch.Tensor:
-        """(B,) long, the number of existing cuboids of every shape."""
-        return self.cuboids.exists.sum(dim=1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -246,39 +242,6 @@ def _check_inputs(points, normals) -> tuple[torch.Tensor, torch.Tensor]:
 # ----------------------------------------------------------------------------------------------
 
 
-def kmeans(
-    points: torch.Tensor, k: int, iterations: int = 20, generator: torch.Generator | None = None
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Batched k-means on positions: k-means++ seeding, then Lloyd iterations.
-
-    points: (B, N, 3) with N >= k. Returns (centers (B, k, 3), labels (B, N) long). The seeding
-    draws from ``generator`` only, so the result is repeatable. A cluster that loses all its points
-    keeps its previous centre.
-    """
-    if points.dim() != 3 or points.shape[-1] != 3:
-        raise ValueError(f"points must have shape (B, N, 3), got {tuple(points.shape)}")
-    b, n, _ = points.shape
-    if not isinstance(k, int) or k < 1 or k > n:
-        raise ValueError(f"k must be an integer in [1, N] = [1, {n}], got {k!r}")
-    batch = torch.arange(b, device=points.device)
-    first = torch.randint(n, (b,), generator=generator).to(points.device)
-    centers = [points[batch, first]]
-    nearest = (points - centers[0][:, None]).square().sum(-1)  # (B, N) squared distance to the seeds
-    for _ in range(1, k):  # k-means++: next seed with probability proportional to D^2
-        weights = nearest + 1e-12 * (nearest.sum(-1, keepdim=True) == 0)  # all points on the seeds: uniform
-        pick = torch.multinomial(weights.cpu(), 1, generator=generator)[:, 0].to(points.device)
-        centers.append(points[batch, pick])
-        nearest = torch.minimum(nearest, (points - centers[-1][:, None]).square().sum(-1))
-    c = torch.stack(centers, dim=1)  # (B, k, 3)
-    for _ in range(iterations):
-        labels = torch.cdist(points, c).argmin(dim=-1)  # (B, N)
-        one_hot = torch.nn.functional.one_hot(labels, k).to(points.dtype)  # (B, N, k)
-        count = one_hot.sum(dim=1)  # (B, k)
-        mean = torch.einsum("bnk,bnc->bkc", one_hot, points) / count.clamp_min(1)[..., None]
-        c = torch.where(count[..., None] > 0, mean, c)
-    return c, torch.cdist(points, c).argmin(dim=-1)
-
-
 def initial_cuboids(
     points: torch.Tensor, config: FitConfig, generator: torch.Generator | None = None
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -295,7 +258,7 @@ def initial_cuboids(
     b, n, _ = points.shape
     m = config.num_cuboids
     if config.init == "kmeans":
-        centers, labels = kmeans(points, m, generator=generator)
+        labels, centers = kmeans(points, m, iterations=20, generator=generator)
     else:
         pick = torch.stack([torch.randperm(n, generator=generator)[:m] for _ in range(b)]).to(points.device)
         centers = torch.gather(points, 1, pick[..., None].expand(-1, -1, 3))

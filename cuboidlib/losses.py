@@ -10,11 +10,12 @@ Shapes: the allocation W (the paper's W_{m,n}) is a tensor of shape (B, N, M) wh
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_positive
+from .config import ConfigDict
 from .distance import chamfer_distance_to_cuboids, nearest_surface_distance, point_to_cuboid_distance
 
 __all__ = [
@@ -246,7 +247,7 @@ ALLOCATIONS = ("segmentation", "nearest_cuboid")
 
 
 @dataclass(frozen=True)
-class LossConfig:
+class LossConfig(ConfigDict):
     """Weights and choices of the total loss L = L_recons + l1 L_compact + l2 L_exist + l3 L_KL (Eq. 9).
 
     Paper defaults: lambda_compact (lambda_1) = 0.1, lambda_exist (lambda_2) = 0.01, lambda_kl
@@ -292,16 +293,6 @@ class LossConfig:
         """The choices of the authors' public code (centroid centres, averaged compactness, 24-point existence)."""
         return cls(**{"centers_from_allocation": True, "compactness_average": True, "existence_min_points": 24.0,
                       **overrides})
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "LossConfig":
-        unknown = set(data) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown LossConfig field(s) {sorted(unknown)}")
-        return cls(**data)
 
 
 @dataclass

@@ -12,18 +12,16 @@ Building blocks, named after the paper:
 * :class:`CuboidSegmentation` (affinity and point-to-cuboid allocation, Eq. (2)-(3)), Sec. 3.3;
 * :class:`CuboidAbstractionNet` (the whole network, configured by :class:`ModelConfig`).
 
-Speed. EdgeConv and the global layer dominate the cost of a training step. They compute exactly
-the functions of the straightforward implementation (``reference_forward``: the explicit
-(B, 2C, N, k) edge tensor, 1x1 convolutions, BatchNorm2d, LeakyReLU, max over neighbours) but
-(1) the first 1x1 convolution of the edge feature [x_j - x_i, x_i] is linear, so it is computed
-once per point and gathered, (2) LeakyReLU and the per-channel affine map of BatchNorm are monotone,
-so the max over neighbours (or points) is taken before them (the min where the BatchNorm scale is
-negative), and (3) the per-edge part of EdgeConv runs in chunks of points with a hand-written
-backward that recomputes the chunk instead of storing (B, N, k, C) tensors. BatchNorm still uses the
-statistics of all edges (or points), as in the reference. Tests check values and gradients against
-``reference_forward`` in float64. ``benchmarks/bench_model.py`` times a training step of both. The
-chunked EdgeConv runs many small multi-threaded operations: on a CPU whose cores are already busy
-with other work, ``torch.set_num_threads(1)`` avoids threads waiting for each other.
+Readable and fast. EdgeConv and the global layer dominate the cost of a training step.
+:class:`EdgeConv` and :class:`GlobalFeature` are written as the paper describes them (the explicit
+(B, 2C, N, k) edge tensor, 1x1 layers, BatchNorm, LeakyReLU, max over neighbours).
+:class:`FastEdgeConv` and :class:`FastGlobalFeature`, below them, compute exactly the same functions
+of the same parameters faster; their docstrings list how they differ. The network uses the fast
+versions unless built with ``fast=False``. Tests check values, gradients and BatchNorm statistics of
+both against each other in float64; ``benchmarks/bench_model.py --variant fast readable`` times a
+training step of each. The chunked EdgeConv runs many small multi-threaded operations: on a CPU
+whose cores are already busy with other work, ``torch.set_num_threads(1)`` avoids threads waiting
+for each other.
 
 Why one file: it is the network of Fig. 3 in one place, the readable EdgeConv and its fast version
 side by side.
@@ -40,13 +38,16 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from .config import ConfigDict
 from .neighbors import knn_indices
 
 __all__ = [
     "ModelConfig",
     "knn_indices",
     "EdgeConv",
+    "FastEdgeConv",
     "GlobalFeature",
+    "FastGlobalFeature",
     "FeatureEmbedding",
     "CuboidDecoder",
     "ShapeAbstraction",
@@ -74,7 +75,7 @@ _MAX_PARAMETERS = 50_000_000
 
 
 @dataclass(frozen=True)
-class ModelConfig:
+class ModelConfig(ConfigDict):
     """Sizes of :class:`CuboidAbstractionNet`. The defaults are the paper's (Sec. 3.1-3.3).
 
     num_cuboids: M, the number of cuboids predicted per shape.
@@ -196,24 +197,6 @@ class ModelConfig:
         """Channels of the point feature f^p (concatenation of the EdgeConv outputs)."""
         return sum(self.edge_dims)
 
-    def to_dict(self) -> dict:
-        """The configuration as a dict of JSON types (tuples become lists)."""
-        out = dataclasses.asdict(self)
-        for name in ("edge_dims", "cuboid_feature_dims"):
-            out[name] = list(out[name])
-        return out
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "ModelConfig":
-        """Inverse of :meth:`to_dict`; unknown keys are an error, missing keys take the defaults."""
-        if not isinstance(data, dict):
-            raise TypeError(f"ModelConfig.from_dict expects a dict, got {type(data).__name__}")
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"ModelConfig.from_dict: unknown key(s) {unknown}; known keys are {sorted(known)}")
-        return cls(**data)
-
 
 # ----------------------------------------------------------------------------------------------
 # Helpers
@@ -260,7 +243,81 @@ def reparameterize(
 
 
 # ----------------------------------------------------------------------------------------------
-# EdgeConv
+# EdgeConv and the global feature (Sec. 3.1): readable versions first, then the fast ones
+# ----------------------------------------------------------------------------------------------
+
+
+class EdgeConv(nn.Module):
+    """One EdgeConv layer [DGCNN] of the point-feature encoder E_pp (Sec. 3.1), as the paper describes it.
+
+    For every point i and each of its k nearest neighbours j (itself included) the edge feature
+    [x_j - x_i, x_i] goes through two shared 1x1 layers (``conv1``: 2 C_in -> C_out and ``conv2``:
+    C_out -> C_out, no bias), each followed by BatchNorm over all B*N*k edges and LeakyReLU; the
+    output is the max over the k edges. This is the readable version: it builds the explicit
+    (B, 2 C_in, N, k) edge tensor. :class:`FastEdgeConv` computes the same function with the same
+    parameters faster; the network uses it unless built with ``fast=False``.
+
+    Example::
+
+        >>> conv = EdgeConv(3, 64, k=20)
+        >>> conv(torch.rand(2, 1024, 3)).shape
+        torch.Size([2, 1024, 64])
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, k: int, negative_slope: float = 0.2):
+        super().__init__()
+        self.in_dim, self.out_dim, self.k = in_dim, out_dim, k
+        self.negative_slope = negative_slope
+        self.conv1 = nn.Linear(2 * in_dim, out_dim, bias=False)
+        self.bn1 = nn.BatchNorm1d(out_dim)
+        self.conv2 = nn.Linear(out_dim, out_dim, bias=False)
+        self.bn2 = nn.BatchNorm1d(out_dim)
+
+    def _neighbours(self, x: torch.Tensor, neighbours: torch.Tensor | None) -> torch.Tensor:
+        if neighbours is None:
+            return knn_indices(x, self.k)
+        check_shape(neighbours, (x.shape[0], x.shape[1], self.k), "neighbours")
+        return neighbours
+
+    def forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
+        """x: (B, N, C_in) -> (B, N, C_out). neighbours: (B, N, k) indices, default kNN of x."""
+        nbr = self._neighbours(x, neighbours)
+        batch, n, c = x.shape
+        offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
+        x_j = x.reshape(batch * n, c)[(nbr + offsets).reshape(-1)].view(batch, n, self.k, c)
+        x_i = x.unsqueeze(2).expand(batch, n, self.k, c)
+        edges = torch.cat([x_j - x_i, x_i], dim=-1).permute(0, 3, 1, 2)  # (B, 2C, N, k)
+        h = edges
+        for conv, bn in ((self.conv1, self.bn1), (self.conv2, self.bn2)):
+            h = F.conv2d(h, conv.weight[:, :, None, None])
+            momentum = _next_momentum(bn) if bn.training and bn.running_mean is not None else 0.0
+            h = F.batch_norm(h, bn.running_mean, bn.running_var, bn.weight, bn.bias, bn.training, momentum, bn.eps)
+            h = F.leaky_relu(h, self.negative_slope)
+        return h.max(dim=-1).values.transpose(1, 2)  # (B, N, C_out)
+
+
+class GlobalFeature(nn.Module):
+    """Shared fully connected layer + BatchNorm + LeakyReLU applied to every point, then max-pooled.
+
+    (B, N, C_in) point features -> (B, C_out) global feature f^g (Sec. 3.1, as in PointNet). The
+    readable version; :class:`FastGlobalFeature` is the same function, faster.
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, negative_slope: float = 0.2):
+        super().__init__()
+        self.linear = nn.Linear(in_dim, out_dim, bias=False)
+        self.bn = nn.BatchNorm1d(out_dim)
+        self.negative_slope = negative_slope
+
+    def forward(self, f: torch.Tensor) -> torch.Tensor:
+        """f: (B, N, C_in) -> (B, C_out)."""
+        h = self.linear(f).transpose(1, 2)  # (B, C_out, N)
+        h = self.bn(h)
+        return F.leaky_relu(h, self.negative_slope).max(dim=-1).values
+
+
+# ----------------------------------------------------------------------------------------------
+# Fast versions (same functions, same parameters; see FastEdgeConv for the differences)
 # ----------------------------------------------------------------------------------------------
 
 
@@ -378,41 +435,29 @@ class _EdgeMLP(torch.autograd.Function):
         return g_P, g_Q, None, sum_gzx, sum_gz, g_W2, None, None, None, None, None, None
 
 
-class EdgeConv(nn.Module):
-    """One EdgeConv layer [DGCNN] of the point-feature encoder E_pp (Sec. 3.1).
+class FastEdgeConv(EdgeConv):
+    """FAST VERSION of :class:`EdgeConv`: the same function of the same parameters (state dicts are
+    interchangeable), about 4x faster for a training step on a CPU and with far less memory.
 
-    For every point i and each of its k nearest neighbours j (itself included) the edge feature
-    [x_j - x_i, x_i] goes through two shared 1x1 layers (``conv1``: 2 C_in -> C_out and ``conv2``:
-    C_out -> C_out, no bias), each followed by BatchNorm over all B*N*k edges and LeakyReLU; the
-    output is the max over the k edges. ``forward`` computes this without building the edge tensor
-    (see the module docstring); ``reference_forward`` builds it and gives the same values and
-    gradients. Both update the BatchNorm running statistics in training mode.
+    Differences from the readable version, none of which changes the result beyond rounding:
 
-    edges_per_chunk: how many edges ``forward`` processes at once (speed and memory only).
+    1. the first 1x1 layer of the edge feature [x_j - x_i, x_i] is linear, so it is computed once per
+       point (P_j + Q_i) and gathered, instead of once per edge;
+    2. LeakyReLU and BatchNorm's per-channel affine map are monotone, so the max over the k
+       neighbours is taken before the second BatchNorm and LeakyReLU (the min where its scale is
+       negative);
+    3. the per-edge part runs in chunks of ``edges_per_chunk`` edges with a hand-written backward
+       (:class:`_EdgeMLP`) that recomputes each chunk instead of storing (B, N, k, C) tensors; the
+       first BatchNorm's statistics come from per-point sums (:meth:`_edge_stats`).
+
+    BatchNorm still uses the statistics of all edges, and the running statistics are updated the same
+    way. Tests compare values, gradients and running statistics with :class:`EdgeConv` in float64.
     """
 
-    def __init__(
-        self,
-        in_dim: int,
-        out_dim: int,
-        k: int,
-        negative_slope: float = 0.2,
-        edges_per_chunk: int = _EDGES_PER_CHUNK,
-    ):
-        super().__init__()
-        self.in_dim, self.out_dim, self.k = in_dim, out_dim, k
-        self.negative_slope = negative_slope
+    def __init__(self, in_dim: int, out_dim: int, k: int, negative_slope: float = 0.2,
+                 edges_per_chunk: int = _EDGES_PER_CHUNK):
+        super().__init__(in_dim, out_dim, k, negative_slope)
         self.edges_per_chunk = edges_per_chunk
-        self.conv1 = nn.Linear(2 * in_dim, out_dim, bias=False)
-        self.bn1 = nn.BatchNorm1d(out_dim)
-        self.conv2 = nn.Linear(out_dim, out_dim, bias=False)
-        self.bn2 = nn.BatchNorm1d(out_dim)
-
-    def _neighbours(self, x: torch.Tensor, neighbours: torch.Tensor | None) -> torch.Tensor:
-        if neighbours is None:
-            return knn_indices(x, self.k)
-        check_shape(neighbours, (x.shape[0], x.shape[1], self.k), "neighbours")
-        return neighbours
 
     def forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
         """x: (B, N, C_in) -> (B, N, C_out). neighbours: (B, N, k) indices, default kNN of x."""
@@ -475,43 +520,15 @@ class EdgeConv(nn.Module):
         sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * (Qc * S).sum(0)
         return mean.to(P.dtype), (sq / (rows * k)).clamp_min(0).to(P.dtype)
 
-    def reference_forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
-        """The straightforward EdgeConv on the explicit (B, 2 C_in, N, k) edge tensor (tests, benchmarks)."""
-        nbr = self._neighbours(x, neighbours)
-        batch, n, c = x.shape
-        offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
-        x_j = x.reshape(batch * n, c)[(nbr + offsets).reshape(-1)].view(batch, n, self.k, c)
-        x_i = x.unsqueeze(2).expand(batch, n, self.k, c)
-        edges = torch.cat([x_j - x_i, x_i], dim=-1).permute(0, 3, 1, 2)  # (B, 2C, N, k)
-        h = edges
-        for conv, bn in ((self.conv1, self.bn1), (self.conv2, self.bn2)):
-            h = F.conv2d(h, conv.weight[:, :, None, None])
-            momentum = _next_momentum(bn) if bn.training and bn.running_mean is not None else 0.0
-            h = F.batch_norm(h, bn.running_mean, bn.running_var, bn.weight, bn.bias, bn.training, momentum, bn.eps)
-            h = F.leaky_relu(h, self.negative_slope)
-        return h.max(dim=-1).values.transpose(1, 2)  # (B, N, C_out)
 
+class FastGlobalFeature(GlobalFeature):
+    """FAST VERSION of :class:`GlobalFeature` (same parameters, same values and gradients).
 
-# ----------------------------------------------------------------------------------------------
-# Global feature and feature embedding (Sec. 3.1)
-# ----------------------------------------------------------------------------------------------
-
-
-class GlobalFeature(nn.Module):
-    """Shared fully connected layer + BatchNorm + LeakyReLU applied to every point, then max-pooled.
-
-    (B, N, C_in) point features -> (B, C_out) global feature f^g (Sec. 3.1, as in PointNet).
-    ``forward`` takes the max over points of the linear layer's output before BatchNorm and
-    LeakyReLU (which are monotone per channel; the min where the scale is negative) and computes the
-    BatchNorm statistics from the mean and covariance of the input, so the (B, N, C_out) activations
-    are never stored; ``reference_forward`` is the plain computation. Same values and gradients.
+    Differences: the max over points is taken of the linear layer's output before BatchNorm and
+    LeakyReLU (monotone per channel; the min where the scale is negative), and the BatchNorm
+    statistics come from the mean and covariance of the input, so the (B, N, C_out) activations are
+    never stored.
     """
-
-    def __init__(self, in_dim: int, out_dim: int, negative_slope: float = 0.2):
-        super().__init__()
-        self.linear = nn.Linear(in_dim, out_dim, bias=False)
-        self.bn = nn.BatchNorm1d(out_dim)
-        self.negative_slope = negative_slope
 
     def forward(self, f: torch.Tensor) -> torch.Tensor:
         batch, n, c = f.shape
@@ -535,10 +552,10 @@ class GlobalFeature(nn.Module):
         y = (hmax - mean) * (self.bn.weight * sign) * torch.rsqrt(var + self.bn.eps) + self.bn.bias
         return F.leaky_relu(y, self.negative_slope)
 
-    def reference_forward(self, f: torch.Tensor) -> torch.Tensor:
-        h = self.linear(f).transpose(1, 2)  # (B, C_out, N)
-        h = self.bn(h)
-        return F.leaky_relu(h, self.negative_slope).max(dim=-1).values
+
+# ----------------------------------------------------------------------------------------------
+# Feature embedding (Sec. 3.1)
+# ----------------------------------------------------------------------------------------------
 
 
 class FeatureEmbedding(nn.Module):
@@ -547,31 +564,28 @@ class FeatureEmbedding(nn.Module):
     forward(points (B, N, 3)) -> (point_features (B, N, sum(edge_dims)), global_feature
     (B, global_dim), mu (B, latent_dim), logvar (B, latent_dim)). The first EdgeConv uses the kNN
     graph of the 3-D points, each later one recomputes it in the previous layer's feature space.
-    ``reference=True`` uses the straightforward EdgeConv and global layer (same results, slower).
+    ``fast=False`` builds the readable :class:`EdgeConv` / :class:`GlobalFeature` instead of their
+    fast versions (same parameters and results, slower).
     """
 
-    def __init__(self, config: ModelConfig):
+    def __init__(self, config: ModelConfig, fast: bool = True):
         super().__init__()
         dims = (3,) + config.edge_dims
+        edge_conv, global_layer = (FastEdgeConv, FastGlobalFeature) if fast else (EdgeConv, GlobalFeature)
         self.edge_convs = nn.ModuleList(
-            EdgeConv(dims[i], dims[i + 1], config.k, config.negative_slope) for i in range(len(config.edge_dims))
+            edge_conv(dims[i], dims[i + 1], config.k, config.negative_slope) for i in range(len(config.edge_dims))
         )
-        self.global_feature = GlobalFeature(config.point_feature_dim, config.global_dim, config.negative_slope)
+        self.global_feature = global_layer(config.point_feature_dim, config.global_dim, config.negative_slope)
         self.fc_mu = nn.Linear(config.global_dim, config.latent_dim)
         self.fc_logvar = nn.Linear(config.global_dim, config.latent_dim)
 
-    def forward(
-        self, points: torch.Tensor, reference: bool = False
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         h, features = points, []
         for conv in self.edge_convs:
-            h = conv.reference_forward(h) if reference else conv(h)
+            h = conv(h)
             features.append(h)
         point_features = torch.cat(features, dim=-1)
-        if reference:
-            global_feature = self.global_feature.reference_forward(point_features)
-        else:
-            global_feature = self.global_feature(point_features)
+        global_feature = self.global_feature(point_features)
         return point_features, global_feature, self.fc_mu(global_feature), self.fc_logvar(global_feature)
 
 
@@ -758,14 +772,16 @@ class CuboidAbstractionNet(nn.Module):
     the segmentation (Sec. 3.3). The latent code is sampled with the re-parameterisation of Eq. (1)
     in training mode and is the mean mu in evaluation mode, unless ``sample_latent`` says otherwise
     (the public code samples in both). ``encode`` gives (mu, logvar); ``decode(z)`` the cuboids of
-    latent codes (for generation and interpolation).
+    latent codes (for generation and interpolation). ``fast=False`` builds the readable EdgeConv and
+    global layer (:class:`EdgeConv`, :class:`GlobalFeature`) instead of their fast versions: the
+    same parameters (a state dict loads into either) and the same results, several times slower.
     """
 
-    def __init__(self, config: ModelConfig | None = None):
+    def __init__(self, config: ModelConfig | None = None, fast: bool = True):
         super().__init__()
         self.config = config if config is not None else ModelConfig()
         cfg = self.config
-        self.embedding = FeatureEmbedding(cfg)
+        self.embedding = FeatureEmbedding(cfg, fast)
         self.abstraction = ShapeAbstraction(cfg)
         self.segmentation = CuboidSegmentation(
             cfg.point_feature_dim, cfg.cuboid_feature_dims[-1], cfg.seg_dim, cfg.attention_scale,
@@ -804,17 +820,14 @@ class CuboidAbstractionNet(nn.Module):
         points: torch.Tensor,
         sample_latent: bool | None = None,
         generator: torch.Generator | None = None,
-        reference: bool = False,
     ) -> ModelOutput:
         """points (B, N, 3) with N > k -> :class:`ModelOutput`.
 
         sample_latent: draw z = mu + sigma * n (Eq. (1)) if True, use z = mu if False; None means
             "sample in training mode only". generator: the source of n (default: torch's global one).
-        reference: use the straightforward EdgeConv and global layer (same results, much slower;
-            for tests and benchmarks).
         """
         points = self._check_points(points)
-        point_features, global_feature, mu, logvar = self.embedding(points, reference=reference)
+        point_features, global_feature, mu, logvar = self.embedding(points)
         if sample_latent is None:
             sample_latent = self.training
         z = reparameterize(mu, logvar, generator) if sample_latent else mu

@@ -36,7 +36,8 @@ from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
-from .train import TrainConfig, load_splits
+from .dataset import load_splits
+from .train import TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
            "publish_run", "read_card", "cards_markdown"]

@@ -41,7 +41,6 @@ noise, and a run must be resumed with the number of processes that wrote its che
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 import math
 import os
@@ -50,22 +49,17 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
+from .config import ConfigDict, derive_seed, read_config_file, resolve_device
+from .dataset import ShapeSet, load_splits
 from .losses import LossConfig, total_loss
 from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation
-from .shapes import CATEGORIES, PART_NAMES
+from .shapes import CATEGORIES
 
 __all__ = [
     "TrainConfig",
-    "read_config_file",
-    "ShapeSet",
-    "split_indices",
-    "load_shapes",
-    "load_splits",
-    "resolve_device",
     "validation_loss",
     "TrainingDiverged",
     "TrainResult",
@@ -84,6 +78,8 @@ DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
 #: Scores of the validation split logged at every validation when its shapes carry part labels: the
 #: mIoU by the paper's label transfer, N_AC and the box distance (:func:`cuboidlib.evaluation.segmentation_scores`).
 VALIDATION_SCORES = ("miou", "n_ac", "box_distance")
+#: Learning-rate schedules: the paper's constant rate, or a half cosine down to ``lr_final``.
+LR_SCHEDULES = ("constant", "cosine")
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -91,13 +87,8 @@ RESUMABLE_CHANGES = (
 )
 # Network outputs checked for NaN / inf before the loss is computed.
 _OUTPUTS = ("centers", "quaternions", "half_sizes", "exist_logits", "W", "mu", "logvar")
-# Streams of the seed derivation (see _derive_seed).
+# Streams of the seed derivation (see derive_seed).
 _ORDER, _LOSS, _LATENT, _VALIDATION = range(4)
-
-
-def _derive_seed(*keys: int) -> int:
-    """A 63-bit seed from a tuple of non-negative integers (independent streams for different keys)."""
-    return int(np.random.SeedSequence([int(k) for k in keys]).generate_state(2, np.uint64)[0] >> np.uint64(1))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -106,7 +97,7 @@ def _derive_seed(*keys: int) -> int:
 
 
 @dataclass
-class TrainConfig:
+class TrainConfig(ConfigDict):
     """Everything a training run depends on. Defaults: the paper's (Sec. 3.4.5 and Sec. 4.1).
 
     Data:
@@ -121,7 +112,10 @@ class TrainConfig:
         split_seed: seed of the permutation that assigns shapes to the splits.
     Model and loss: ``model`` a :class:`ModelConfig` dict, ``loss`` a :class:`LossConfig` dict
         (either objects or dicts may be given; missing keys take their defaults).
-    Optimisation: Adam with ``lr`` (paper: 6e-4), ``batch_size`` shapes per step (paper: 32, the
+    Optimisation: Adam with ``lr`` (paper: 6e-4; constant, as in the paper, or with ``lr_schedule``
+        "cosine" a half cosine from ``lr`` down to ``lr_final`` over the run's steps), ``init_from``
+        (optional: a checkpoint whose weights start the run instead of a random initialisation, to
+        continue training with another schedule), ``batch_size`` shapes per step (paper: 32, the
         global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
         ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time.
     Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
@@ -139,6 +133,9 @@ class TrainConfig:
     model: dict = field(default_factory=lambda: ModelConfig().to_dict())
     loss: dict = field(default_factory=lambda: LossConfig().to_dict())
     lr: float = 6e-4
+    lr_schedule: str = "constant"
+    lr_final: float = 0.0
+    init_from: str | None = None
     batch_size: int = 32
     epochs: int = 1000
     max_steps: int | None = None
@@ -180,6 +177,13 @@ class TrainConfig:
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"TrainConfig.lr must be a positive number, got {self.lr!r}")
         self.lr = float(self.lr)
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"TrainConfig.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if not (isinstance(self.lr_final, (int, float)) and 0 <= self.lr_final <= self.lr):
+            raise ValueError(f"TrainConfig.lr_final must be a number between 0 and lr ({self.lr}), got {self.lr_final!r}")
+        self.lr_final = float(self.lr_final)
+        if self.init_from is not None:
+            self.init_from = str(self.init_from)
         if self.max_minutes is not None:
             if not (isinstance(self.max_minutes, (int, float)) and self.max_minutes > 0):
                 raise ValueError(f"TrainConfig.max_minutes must be a positive number or None, got {self.max_minutes!r}")
@@ -196,23 +200,6 @@ class TrainConfig:
     @property
     def loss_config(self) -> LossConfig:
         return LossConfig.from_dict(self.loss)
-
-    def to_dict(self) -> dict:
-        """The configuration as a dict of JSON types."""
-        out = dataclasses.asdict(self)
-        out["split_fractions"] = list(self.split_fractions)
-        return out
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "TrainConfig":
-        """Inverse of :meth:`to_dict`; unknown keys are an error, missing keys take the defaults."""
-        if not isinstance(data, dict):
-            raise TypeError(f"TrainConfig.from_dict expects a dict, got {type(data).__name__}")
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown TrainConfig key(s) {unknown}; known keys are {sorted(known)}")
-        return cls(**data)
 
     def replace(self, **changes) -> "TrainConfig":
         """A copy with some fields changed; ``model`` / ``loss`` changes are merged into the dicts."""
@@ -239,152 +226,9 @@ class TrainConfig:
         return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
 
 
-def read_config_file(path: str | os.PathLike) -> dict:
-    """The JSON object of a config file as it is (a partial TrainConfig dict; checked when used)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such config file")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: a config file must hold a JSON object, got {type(data).__name__}")
-    return data
-
-
 def _check_int(value, name: str, minimum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-
-
-# ----------------------------------------------------------------------------------------------
-# Data
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class ShapeSet:
-    """Shapes held in memory: points, normals (S, N, 3) float32, labels (S, N) int64 or None.
-
-    indices (S,): each shape's index in its source (collection or sorted file list); part_names:
-    the names of the part labels (None when unknown); num_parts: the number of part labels.
-    """
-
-    points: torch.Tensor
-    normals: torch.Tensor
-    labels: torch.Tensor | None
-    indices: torch.Tensor
-    part_names: tuple[str, ...] | None = None
-    num_parts: int | None = None
-
-    def __len__(self) -> int:
-        return int(self.points.shape[0])
-
-    def subset(self, index: torch.Tensor) -> "ShapeSet":
-        """The shapes at positions ``index`` (a 1-D int64 tensor)."""
-        return ShapeSet(
-            self.points[index], self.normals[index], None if self.labels is None else self.labels[index],
-            self.indices[index], self.part_names, self.num_parts,
-        )
-
-    def to(self, device: torch.device | str) -> "ShapeSet":
-        return ShapeSet(
-            self.points.to(device), self.normals.to(device), None if self.labels is None else self.labels.to(device),
-            self.indices, self.part_names, self.num_parts,
-        )
-
-
-def split_indices(n: int, fractions: tuple[float, float, float], seed: int) -> dict[str, torch.Tensor]:
-    """Assign ``n`` shapes to "train", "val" and "test" by a permutation seeded with ``seed``.
-
-    Sizes: validation round(n * f_val) (at least 1), test round(n * f_test) (at least 1 if
-    f_test > 0), train the rest (at least 1). Returns sorted int64 index tensors; the same
-    (n, fractions, seed) always gives the same split.
-    """
-    _, f_val, f_test = fractions
-    n_val = max(1, round(n * f_val))
-    n_test = max(1, round(n * f_test)) if f_test > 0 else 0
-    n_train = n - n_val - n_test
-    if n_train < 1:
-        raise ValueError(
-            f"{n} shapes are too few for the split fractions {tuple(fractions)}: no training shape is left"
-        )
-    perm = torch.randperm(n, generator=torch.Generator().manual_seed(_derive_seed(seed)))
-    parts = torch.split(perm, [n_train, n_val, n_test])
-    return {name: part.sort().values for name, part in zip(("train", "val", "test"), parts)}
-
-
-def _data_files(folder: Path) -> list[Path]:
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES
-
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such data folder")
-    suffixes = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
-    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
-    if not files:
-        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})")
-    return files
-
-
-def load_shapes(config: TrainConfig, progress: bool = False) -> ShapeSet:
-    """All shapes of the configured data source as one :class:`ShapeSet` (before splitting)."""
-    from .dataset import PointCloudDataset
-    from .shapes import make_collection
-
-    if config.data_dir is None:
-        collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
-                                     progress=progress)
-        dataset = PointCloudDataset(collection)
-        part_names = PART_NAMES[config.category]
-    else:
-        dataset = PointCloudDataset(_data_files(Path(config.data_dir)), n_points=config.n_points, seed=config.data_seed)
-        part_names = None
-    items = [dataset[i] for i in range(len(dataset))]
-    sizes = {int(item["points"].shape[0]) for item in items}
-    if len(sizes) > 1:
-        raise ValueError(f"the shapes have different numbers of points {sorted(sizes)}; set n_points to batch them")
-    has_labels = all("labels" in item for item in items)
-    labels = torch.stack([item["labels"] for item in items]) if has_labels else None
-    num_parts = None
-    if labels is not None:
-        num_parts = len(part_names) if part_names is not None else int(labels.max()) + 1
-        if labels.min() < 0 or labels.max() >= num_parts:
-            raise ValueError(
-                f"part labels must lie in [0, {num_parts}), got [{int(labels.min())}, {int(labels.max())}]"
-            )
-    return ShapeSet(
-        torch.stack([item["points"] for item in items]),
-        torch.stack([item["normals"] for item in items]),
-        labels,
-        torch.stack([item["index"] for item in items]),
-        part_names,
-        num_parts,
-    )
-
-
-def load_splits(config: TrainConfig, progress: bool = False) -> dict[str, ShapeSet]:
-    """The "train", "val" and "test" :class:`ShapeSet` of a configuration (see :func:`split_indices`)."""
-    shapes = load_shapes(config, progress)
-    return {name: shapes.subset(idx) for name, idx in split_indices(len(shapes), config.split_fractions,
-                                                                    config.split_seed).items()}
-
-
-def resolve_device(name: str) -> torch.device:
-    """"auto" -> CUDA when available, else CPU; otherwise ``torch.device(name)`` (CUDA must exist)."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except (RuntimeError, TypeError) as exc:
-        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}") from exc
-    if device.type not in ("cpu", "cuda"):
-        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
-    return device
 
 
 # ----------------------------------------------------------------------------------------------
@@ -562,11 +406,13 @@ class Trainer:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
             self.model = CuboidAbstractionNet(config.model_config)
+        if config.init_from is not None and not resume:
+            self._initialise_from(Path(config.init_from))
         self.model.to(self.device).train()
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.lr)
-        self.loss_generator = torch.Generator(self.device).manual_seed(_derive_seed(config.seed, _LOSS, self.dist.rank))
+        self.loss_generator = torch.Generator(self.device).manual_seed(derive_seed(config.seed, _LOSS, self.dist.rank))
         self.latent_generator = torch.Generator(self.device).manual_seed(
-            _derive_seed(config.seed, _LATENT, self.dist.rank)
+            derive_seed(config.seed, _LATENT, self.dist.rank)
         )
         self.step = 0
         self.best_val: float | None = None
@@ -591,6 +437,20 @@ class Trainer:
 
     # ------------------------------------------------------------------------------ state
 
+    def _initialise_from(self, path: Path) -> None:
+        """Start from the weights of the checkpoint ``path`` (same model configuration required)."""
+        state = load_checkpoint(path)
+        check_config_matches(state["config"]["model"], self.config.model, f"model config of init_from {path}")
+        self.model.load_state_dict(state["model"], strict=True)
+
+    def learning_rate(self, step: int) -> float:
+        """The rate of optimiser step ``step`` (0-based): constant, or a half cosine over the run."""
+        config = self.config
+        if config.lr_schedule == "constant" or self.total_steps <= 1:
+            return config.lr
+        progress = min(step / (self.total_steps - 1), 1.0)
+        return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
+
     def _restore(self, state: dict) -> None:
         missing = [k for k in ("optimizer", "step", "rng", "best_val", "elapsed_seconds") if k not in state]
         if missing:
@@ -600,6 +460,12 @@ class Trainer:
         check_config_matches(stored["model"], self.config.model, "model config")
         stored_run = {k: v for k, v in stored.items() if k not in RESUMABLE_CHANGES}
         check_config_matches(stored_run, self.config.run_defining(), "training config")
+        stored_total = min(stored["epochs"] * self.steps_per_epoch, stored.get("max_steps") or math.inf)
+        if self.config.lr_schedule != "constant" and stored_total != self.total_steps:
+            raise ValueError(
+                f"the {self.config.lr_schedule} learning-rate schedule spans the run's {stored_total} steps; "
+                f"resume it with the same epochs / max_steps (this run asks for {self.total_steps} steps)"
+            )
         if state.get("world_size", 1) != self.dist.world_size:
             raise ValueError(
                 f"the checkpoint was written by a run of {state.get('world_size', 1)} process(es); resume it with "
@@ -678,7 +544,7 @@ class Trainer:
 
     def _permutation(self, epoch: int) -> torch.Tensor:
         """The order of the training shapes in ``epoch``, the same on every rank and after a resume."""
-        g = torch.Generator().manual_seed(_derive_seed(self.config.seed, _ORDER, epoch))
+        g = torch.Generator().manual_seed(derive_seed(self.config.seed, _ORDER, epoch))
         return torch.randperm(len(self.train_set), generator=g)
 
     def _train_step(self, index: torch.Tensor, over_budget: bool) -> tuple[dict[str, float], bool]:
@@ -716,6 +582,8 @@ class Trainer:
                      if p.grad is not None and not bool(torch.isfinite(p.grad).all())]
             raise TrainingDiverged(self.step + 1, [f"gradients ({_first_names(names)})"],
                                    {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate(self.step)
         self.optimizer.step()
         self._check_weights(self.step + 1, {k: numbers[k] for k in LOSS_TERMS})
         return numbers, bool(flag.item() > 0)
@@ -736,7 +604,7 @@ class Trainer:
         if not self.dist.is_main:
             return
         values = validation_loss(self.model, self.val_set, self.loss_config, self.config.batch_size,
-                                 _derive_seed(self.config.seed, _VALIDATION))
+                                 derive_seed(self.config.seed, _VALIDATION))
         scores = self._validation_scores()
         self._log("val", {**values, **scores}, seconds)
         if not math.isfinite(values["total"]):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cuboidlib.train import split_indices
+from cuboidlib.dataset import split_indices
 
 import runner
 
@@ -79,7 +79,8 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
 
     from cuboidlib.applications import abstract_shapes
     from cuboidlib.checkpoint import load_model
-    from cuboidlib.train import TrainConfig, load_splits
+    from cuboidlib.dataset import load_splits
+    from cuboidlib.train import TrainConfig
     from cuboidlib.viz import plot_cuboids_matplotlib
 
     shown = [r for r in records if r["status"] == "ok" and r["key"]["seed"] == scale.seeds[0]]

@@ -18,7 +18,8 @@ table; this module does everything else, the same way for all of them:
   The model is selected on the validation split (``best.pt``) and scored on the test split.
 * **Quick scale** (``--quick``): a tiny network, 12 shapes, an eighth of the points (at least 32),
   2 steps, one seed: every script runs end to end in seconds (for tests; the numbers mean nothing).
-* **Input noise** (:func:`add_noise`, Table 4): seeded isotropic Gaussian jitter of the positions.
+* **Input noise** (:func:`cuboidlib.dataset.add_noise`, Table 4): seeded isotropic Gaussian jitter of the
+  positions.
 * **Running** (:func:`run_all`): independent runs go to ``--jobs`` worker processes (default 2),
   each with one torch thread, longest runs first; a run that fails is recorded with its error and
   the others go on.
@@ -28,7 +29,7 @@ table; this module does everything else, the same way for all of them:
   baseline (:func:`cuboidlib.evaluation.evaluate_baseline`), or with a nearest-cuboid segmentation
   for the variants without a segmentation branch (Table 3); per-shape fitting
   (:mod:`cuboidlib.fitting`) is scored the same way.
-* **Results** (:func:`write_results`): ``experiments/results/<name>.json`` with the command, the
+* **Results** (:mod:`summaries`, :func:`write_results`): ``experiments/results/<name>.json`` with the command, the
   git commit, the machine, the wall time, the settings, the config and the metrics of every run
   and the summary table (mean and spread over seeds) with the paper's numbers beside ours, and
   ``<name>.csv`` with the summary table. ``--quick`` results are written as ``<name>_quick.*``.
@@ -41,15 +42,10 @@ estimated time, runs, prints the table and writes the results.
 from __future__ import annotations
 
 import argparse
-import csv
-import dataclasses
-import json
 import math
 import multiprocessing
 import os
-import platform
 import shlex
-import statistics
 import sys
 import time
 import traceback
@@ -59,17 +55,29 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Sequence
 
-import numpy as np
 import torch
 
 from cuboidlib.checkpoint import load_model
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
-from cuboidlib.evaluation import CuboidPredictions, evaluate_baseline, predict_cuboids, score_cuboids
+from cuboidlib.abstraction import AbstractionBatch
+from cuboidlib.evaluation import evaluate_baseline, predict_cuboids, score_cuboids
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.losses import compactness_loss
 from cuboidlib.model import CuboidAbstractionNet
 from cuboidlib.release import git_commit
-from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits, split_indices
+from cuboidlib.dataset import ShapeSet, load_splits, split_indices
+from cuboidlib.dataset import add_noise, noisy_splits
+from cuboidlib.train import TrainConfig, Trainer
+from summaries import (  # noqa: F401 - the scripts use them through this module
+    CD_CONVENTION,
+    machine,
+    mean_sd,
+    paper_value,
+    result_rows,
+    summarize,
+    text_table,
+    write_results,
+)
 
 __all__ = [
     "REPO",
@@ -208,42 +216,6 @@ class Scale:
 
 
 # ----------------------------------------------------------------------------------------------
-# Input noise (Table 4)
-# ----------------------------------------------------------------------------------------------
-
-
-def add_noise(points: torch.Tensor, sigma_n: float, seed: int) -> torch.Tensor:
-    """Input noise of Table 4: ``points + sigma_n * e`` with e ~ N(0, I_3) drawn independently per point.
-
-    The jitter is isotropic: a uniformly random direction with a chi(3)-distributed length, each
-    coordinate with standard deviation ``sigma_n`` (variance sigma_n^2, as in the paper). It comes
-    from a generator seeded with ``seed`` (the same seed gives the same jitter; for a fixed seed the
-    noise levels differ only by the factor sigma_n). points: (..., 3) float; returns a new tensor of
-    the same shape. The normals are not touched: they stay those of the clean surface.
-    """
-    if not isinstance(points, torch.Tensor) or not points.is_floating_point() or points.shape[-1:] != (3,):
-        raise ValueError(f"points must be a float tensor of shape (..., 3), got {getattr(points, 'shape', points)!r}")
-    if not (isinstance(sigma_n, (int, float)) and math.isfinite(sigma_n) and sigma_n >= 0):
-        raise ValueError(f"sigma_n must be a finite non-negative number, got {sigma_n!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    generator = torch.Generator().manual_seed(seed)
-    e = torch.randn(points.shape, generator=generator, dtype=points.dtype)
-    return points + sigma_n * e.to(points.device)
-
-
-def _noise_seed(data_seed: int, split: str) -> int:
-    return int(np.random.SeedSequence([data_seed, ("train", "val", "test").index(split), 5]).generate_state(1)[0])
-
-
-def noisy_splits(splits: dict[str, ShapeSet], sigma_n: float, data_seed: int) -> dict[str, ShapeSet]:
-    """Every split with :func:`add_noise` on its points (one seed per split, derived from ``data_seed``);
-    normals, labels and indices unchanged. The noise is drawn once: every epoch sees the same noisy clouds."""
-    return {name: dataclasses.replace(s, points=add_noise(s.points, sigma_n, _noise_seed(data_seed, name)))
-            for name, s in splits.items()}
-
-
-# ----------------------------------------------------------------------------------------------
 # Why the averaged compactness form
 # ----------------------------------------------------------------------------------------------
 
@@ -341,18 +313,18 @@ def _test_shapes(config: TrainConfig, options: dict) -> tuple[ShapeSet, ShapeSet
     return seen["test"], splits["test"]
 
 
-def nearest_cuboid_segmentation(shapes: ShapeSet, pred: CuboidPredictions, distance: str) -> torch.Tensor:
+def nearest_cuboid_segmentation(shapes: ShapeSet, pred: AbstractionBatch, distance: str) -> torch.Tensor:
     """(S, N) segment of every point = its nearest EXISTING cuboid under ``distance`` ("normal": Eq. (5)
     with sigma_s = 0; "nearest_surface"), the allocation of the variants without a segmentation branch
     (P2C-Dis, Chamfer-Dis of Table 3)."""
-    cuboids = (pred.centers, pred.quaternions, pred.half_sizes)
+    cuboids = (pred.cuboids.centers, pred.cuboids.quaternions, pred.cuboids.half_sizes)
     if distance == "normal":
         d = point_to_cuboid_distance(shapes.points, shapes.normals, *cuboids, sigma_s=0.0)
     elif distance == "nearest_surface":
         d = nearest_surface_distance(shapes.points, *cuboids)
     else:
         raise ValueError(f"segmentation distance must be 'normal' or 'nearest_surface', got {distance!r}")
-    return d.masked_fill(~pred.exists[:, None, :], math.inf).argmin(dim=-1)
+    return d.masked_fill(~pred.cuboids.exists[:, None, :], math.inf).argmin(dim=-1)
 
 
 def _metrics(scores: dict) -> dict:
@@ -373,7 +345,7 @@ def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dic
     centroids = config.loss_config.centers_from_allocation
     pred, fallback = predict_cuboids(model, test, centers_from_allocation=centroids)
     if options.get("segmentation"):
-        pred.segmentation = nearest_cuboid_segmentation(test, pred, options["segmentation"])
+        pred.labels = nearest_cuboid_segmentation(test, pred, options["segmentation"])
     scores = score_cuboids(test, pred)
     scores.update(num_cuboids=pred.num_segments, shapes_without_existing_cuboid=fallback)
     metrics = _metrics(scores)
@@ -398,10 +370,8 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
     test, _ = _test_shapes(config, options)
     fit_config = FitConfig(**options["fit"])
     fit = fit_cuboids(test.points, test.normals, fit_config)
-    c = fit.cuboids
-    pred = CuboidPredictions(c.centers, c.quaternions, c.half_sizes, c.exists, fit.labels)
-    scores = score_cuboids(test, pred)
-    scores.update(num_cuboids=pred.num_segments, fit_seconds=round(fit.elapsed_s, 1),
+    scores = score_cuboids(test, fit)
+    scores.update(num_cuboids=fit.num_segments, fit_seconds=round(fit.elapsed_s, 1),
                   converged=int(fit.converged.sum()))
     return [{"method": options.get("method", "per-shape fitting"), "metrics": _metrics(scores), "scores": scores}]
 
@@ -544,107 +514,6 @@ def _describe(record: dict) -> str:
         parts.append(f"{result['method']}: CD {m['cd']:.5f}, mIoU {miou}, N_AC {m['n_ac']:.2f}")
     steps = f"{record['training']['steps']} steps, " if "training" in record else ""
     return f"{record['name']} ({key}): " + "; ".join(parts) + f" ({steps}{record['seconds']:.0f} s)"
-
-
-# ----------------------------------------------------------------------------------------------
-# Summaries and tables
-# ----------------------------------------------------------------------------------------------
-
-
-def result_rows(records: Sequence[dict]) -> list[dict]:
-    """One flat row per (successful run, method): the run's key, ``method`` and the metrics."""
-    rows = []
-    for record in records:
-        if record.get("status") != "ok":
-            continue
-        for result in record["results"]:
-            rows.append({**record["key"], "method": result["method"], **result["metrics"]})
-    return rows
-
-
-def summarize(rows: Sequence[dict], by: Sequence[str], metrics: Sequence[str]) -> list[dict]:
-    """Group ``rows`` by the ``by`` fields (in order of first appearance) and give, per metric, the
-    mean, the sample standard deviation over the group (None for one value) and the count n.
-
-    Each summary row holds the ``by`` fields, ``seeds`` (the seeds of the group) and
-    ``<metric>_mean``, ``<metric>_sd``, ``<metric>_n`` (missing / None values are left out).
-    """
-    groups: dict[tuple, list[dict]] = {}
-    for row in rows:
-        groups.setdefault(tuple(row.get(k) for k in by), []).append(row)
-    out = []
-    for values, members in groups.items():
-        summary = dict(zip(by, values))
-        summary["seeds"] = [m["seed"] for m in members if "seed" in m]
-        for metric in metrics:
-            xs = [float(m[metric]) for m in members if m.get(metric) is not None]
-            summary[f"{metric}_mean"] = statistics.fmean(xs) if xs else None
-            summary[f"{metric}_sd"] = statistics.stdev(xs) if len(xs) > 1 else None
-            summary[f"{metric}_n"] = len(xs)
-        out.append(summary)
-    return out
-
-
-def mean_sd(row: dict, metric: str, scale: float = 1.0, digits: int = 3) -> str:
-    """"mean ± sd" of a summary row's metric (times ``scale``), "mean" for one value, "-" for none."""
-    mean, sd = row.get(f"{metric}_mean"), row.get(f"{metric}_sd")
-    if mean is None:
-        return "-"
-    text = f"{scale * mean:.{digits}f}"
-    return text if sd is None else f"{text} ± {scale * sd:.{digits}f}"
-
-
-def paper_value(value: float | None, digits: int = 3) -> str:
-    """A number typed from the paper, or "-" where the paper gives none."""
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
-def text_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A plain-text table: first column left-aligned, the others right-aligned."""
-    widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
-
-    def fmt(row) -> str:
-        return "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
-
-    return "\n".join([fmt(headers), fmt(["-" * w for w in widths]), *(fmt(r) for r in rows)])
-
-
-CD_CONVENTION = ("CD: Chamfer distance x 1000, squared L2, mean over points per direction, sum of the two "
-                 "directions, 4096 points sampled on the existing cuboids (cuboidlib.metrics.ChamferConvention()); "
-                 "mean ± sample standard deviation over seeds where there are several.")
-
-
-def machine() -> dict:
-    """The machine a script ran on (CPUs, torch and Python versions, platform, load average)."""
-    load = os.getloadavg() if hasattr(os, "getloadavg") else None
-    return {"cpus": os.cpu_count(), "torch_threads_per_run": 1, "torch": torch.__version__,
-            "python": platform.python_version(), "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(),
-            "load_average_at_start": None if load is None else [round(x, 2) for x in load]}
-
-
-def write_results(path_stem: Path, payload: dict, summary: Sequence[dict]) -> tuple[Path, Path]:
-    """Write ``<stem>.json`` (``payload``, which must hold the provenance) and ``<stem>.csv`` (``summary``)."""
-    path_stem.parent.mkdir(parents=True, exist_ok=True)
-    json_path, csv_path = path_stem.with_suffix(".json"), path_stem.with_suffix(".csv")
-    json_path.write_text(json.dumps(payload, indent=1, default=_json_default) + "\n")
-    columns: list[str] = []
-    for row in summary:
-        columns += [k for k in row if k not in columns]
-    with csv_path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, columns)
-        writer.writeheader()
-        for row in summary:
-            writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
-    return json_path, csv_path
-
-
-def _json_default(value):
-    if isinstance(value, (np.integer, np.floating)):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -18,6 +18,23 @@ def test_kmeans_separates_well_separated_blobs_and_is_deterministic():
     torch.testing.assert_close(c[labels.view(3, 50)[:, 0]], centres, atol=0.05, rtol=0)
 
 
+def test_kmeans_runs_a_batch_of_point_sets_like_each_one_alone():
+    g = torch.Generator().manual_seed(0)
+    true_centers = torch.tensor([[-3.0, 0, 0], [0, 3.0, 0], [0, 0, 3.0]])
+    points = torch.stack([true_centers.repeat_interleave(50, 0) + 0.1 * torch.randn(150, 3, generator=g)
+                          for _ in range(2)])
+    labels, centers = kmeans(points, 3, generator=torch.Generator().manual_seed(1))
+    assert labels.shape == (2, 150) and centers.shape == (2, 3, 3)
+    for b in range(2):  # every true blob gets its own centre, every blob is one cluster
+        distance = torch.cdist(true_centers, centers[b])
+        assert distance.amin(dim=1).max() < 0.1
+        assert len(set(distance.argmin(dim=1).tolist())) == 3
+        assert all(len(set(labels[b, 50 * k:50 * (k + 1)].tolist())) == 1 for k in range(3))
+    one, _ = kmeans(points[:1], 3, generator=torch.Generator().manual_seed(1))
+    alone, _ = kmeans(points[0], 3, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(one[0], alone)
+
+
 def test_kmeans_rejects_bad_k():
     with pytest.raises(ValueError, match="k must be"):
         kmeans(torch.zeros(4, 2), 5)
@@ -53,7 +70,7 @@ def test_fit_cluster_boxes_on_two_separate_boxes():
     half = torch.tensor([[[0.3, 0.2, 0.1], [0.15, 0.3, 0.06]]])  # distinct sizes: PCA axes are well defined
     s = sample_cuboid_surfaces(centers, quats, half, 2000, generator=torch.Generator().manual_seed(0))
     result = fit_cluster_boxes(s.points[0], s.normals[0], num_boxes=2, normal_weight=0.0)
-    assert result.cuboids.num_cuboids == 2 and result.labels.shape == (2000,)
+    assert result.cuboids.num_cuboids == 2 and result.labels.shape == (1, 2000) and bool(result.cuboids.exists.all())
     # each fitted box matches one true box
     order = result.cuboids.centers[0, :, 0].argsort()
     torch.testing.assert_close(result.cuboids.centers[0, order], centers[0], atol=0.02, rtol=0)

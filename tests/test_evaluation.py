@@ -6,7 +6,6 @@ import torch
 
 from cuboidlib.cli import main
 from cuboidlib.evaluation import (
-    CuboidPredictions,
     evaluate_baseline,
     evaluate_model,
     format_table,
@@ -14,18 +13,24 @@ from cuboidlib.evaluation import (
     predict_cuboids,
     score_cuboids,
 )
-from cuboidlib.geometry import sample_cuboid_surfaces
+from cuboidlib.abstraction import AbstractionBatch
+from cuboidlib.geometry import Cuboids, sample_cuboid_surfaces
 from cuboidlib.metrics import ChamferConvention
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
-from cuboidlib.train import ShapeSet, TrainConfig, Trainer, load_splits
+from cuboidlib.dataset import ShapeSet, load_splits
+from cuboidlib.train import TrainConfig, Trainer
 
 TINY = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
                          cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
 
 
+def _batch(centers, quaternions, half_sizes, exists, labels) -> AbstractionBatch:
+    return AbstractionBatch(Cuboids(centers, quaternions, half_sizes, exists), labels)
+
+
 def _two_box_shapes(n_shapes: int = 5, n_points: int = 400, seed: int = 0):
     """Shapes made of two separate axis-aligned boxes (a "seat" below a "back"), points sampled on their
-    surfaces, part label = box index. Returns (ShapeSet, the boxes as CuboidPredictions with a perfect segmentation)."""
+    surfaces, part label = box index. Returns (ShapeSet, the boxes as an AbstractionBatch with a perfect segmentation)."""
     g = torch.Generator().manual_seed(seed)
     centers = torch.tensor([[0.0, -0.2, 0.0], [0.0, 0.25, -0.2]]).repeat(n_shapes, 1, 1)
     centers = centers + 0.02 * torch.randn(n_shapes, 2, 3, generator=g)
@@ -34,7 +39,7 @@ def _two_box_shapes(n_shapes: int = 5, n_points: int = 400, seed: int = 0):
     s = sample_cuboid_surfaces(centers, quats, half, n_points, generator=g)
     shapes = ShapeSet(s.points, s.normals, s.cuboid_index.clone(), torch.arange(n_shapes), ("seat", "back"), 2)
     exists = torch.ones(n_shapes, 2, dtype=torch.bool)
-    return shapes, CuboidPredictions(centers, quats, half, exists, s.cuboid_index.clone())
+    return shapes, _batch(centers, quats, half, exists, s.cuboid_index.clone())
 
 
 def test_label_transfer_split_takes_a_seeded_fifth_to_label():
@@ -56,14 +61,14 @@ def test_perfect_cuboids_and_segmentation_score_perfectly():
     assert r["miou"] == 1.0
     # only points within about one sample spacing (~0.02 here) of an edge may find a sample on the adjacent face
     assert r["normal_consistency"] > 0.9
-    turned = CuboidPredictions(pred.centers, torch.tensor([0.9239, 0.0, 0.3827, 0.0]).expand_as(pred.quaternions),
-                               pred.half_sizes, pred.exists, pred.segmentation)  # 45 degrees about y
+    turned = _batch(pred.cuboids.centers, torch.tensor([0.9239, 0.0, 0.3827, 0.0]).expand_as(pred.cuboids.quaternions),
+                               pred.cuboids.half_sizes, pred.cuboids.exists, pred.labels)  # 45 degrees about y
     # side-face normals now meet the points' normals at 45 degrees (|cos| = 0.71); top and bottom still agree
     assert score_cuboids(shapes, turned, conventions=[ChamferConvention(n_samples=2048)])["normal_consistency"] < \
         r["normal_consistency"] - 0.05
     assert r["n_ac"] == 2.0 and r["n_shapes"] == 3
-    shifted = CuboidPredictions(pred.centers + torch.tensor([0.1, 0.0, 0.0]), pred.quaternions, pred.half_sizes,
-                                pred.exists, pred.segmentation)
+    shifted = _batch(pred.cuboids.centers + torch.tensor([0.1, 0.0, 0.0]), pred.cuboids.quaternions, pred.cuboids.half_sizes,
+                                pred.cuboids.exists, pred.labels)
     r_shifted = score_cuboids(shapes, shifted, conventions=[ChamferConvention(n_samples=2048)])
     # a shift by 0.1 along x moves every side face 0.1 away: the squared CD grows by far more than 0.1^2 / 4
     assert r_shifted["chamfer"][0]["value"] > r["chamfer"][0]["value"] + 0.0025
@@ -74,15 +79,15 @@ def test_label_transfer_scores_correspondence_not_index_values():
     shapes, pred = _two_box_shapes(n_shapes=10)
     labelled, scored = label_transfer_split(10, 0.2, seed=0)
     # The same cuboid index meaning the other part on every shape: labels still transfer perfectly.
-    swapped_everywhere = CuboidPredictions(pred.centers, pred.quaternions, pred.half_sizes, pred.exists,
-                                           1 - pred.segmentation)
+    swapped_everywhere = _batch(pred.cuboids.centers, pred.cuboids.quaternions, pred.cuboids.half_sizes, pred.cuboids.exists,
+                                           1 - pred.labels)
     fast = [ChamferConvention(n_samples=64)]  # the Chamfer distance is not what this test is about
     assert score_cuboids(shapes, swapped_everywhere, conventions=fast, seed=0)["miou"] == 1.0
     # Indices that mean one part on the labelled shapes and the other on the scored ones: every scored point is
     # wrong, so both labels have IoU 0.
-    inconsistent = pred.segmentation.clone()
+    inconsistent = pred.labels.clone()
     inconsistent[scored] = 1 - inconsistent[scored]
-    r = score_cuboids(shapes, CuboidPredictions(pred.centers, pred.quaternions, pred.half_sizes, pred.exists,
+    r = score_cuboids(shapes, _batch(pred.cuboids.centers, pred.cuboids.quaternions, pred.cuboids.half_sizes, pred.cuboids.exists,
                                                 inconsistent), conventions=fast, seed=0)
     assert r["miou"] == 0.0
     assert r["label_transfer"]["n_labelled"] == 2 and r["label_transfer"]["n_scored"] == 8
@@ -90,7 +95,8 @@ def test_label_transfer_scores_correspondence_not_index_values():
 
 def test_conventions_share_their_surface_samples():
     shapes, pred = _two_box_shapes()
-    pred.centers = pred.centers + 0.05
+    c = pred.cuboids
+    pred = _batch(c.centers + 0.05, c.quaternions, c.half_sizes, c.exists, pred.labels)
     conventions = [ChamferConvention(n_samples=512), ChamferConvention(directions="mean", n_samples=512),
                    ChamferConvention(scale=100.0, n_samples=512), ChamferConvention(norm="l1", n_samples=512)]
     r = score_cuboids(shapes, pred, conventions=conventions, seed=3)
@@ -138,8 +144,8 @@ def test_networks_trained_with_centroid_centres_are_scored_with_them():
         W = model(shapes.points).W
     # c_m = sum_n W_nm p_n / (sum_n W_nm + 1), computed independently of the library
     expected = torch.einsum("bnm,bnc->bmc", W, shapes.points) / (W.sum(dim=1)[..., None] + 1)
-    torch.testing.assert_close(pred.centers, expected)
-    assert not torch.allclose(predict_cuboids(model, shapes)[0].centers, expected)
+    torch.testing.assert_close(pred.cuboids.centers, expected)
+    assert not torch.allclose(predict_cuboids(model, shapes)[0].cuboids.centers, expected)
 
 
 def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():

@@ -31,9 +31,11 @@ import table4_distance as table4  # noqa: E402
 import table5_compactness as table5  # noqa: E402
 import table6_num_cuboids as table6  # noqa: E402
 
-from cuboidlib.evaluation import CuboidPredictions  # noqa: E402
+from cuboidlib.abstraction import AbstractionBatch  # noqa: E402
+from cuboidlib.dataset import ShapeSet  # noqa: E402
+from cuboidlib.geometry import Cuboids  # noqa: E402
 from cuboidlib.losses import LossConfig  # noqa: E402
-from cuboidlib.train import ShapeSet, TrainConfig  # noqa: E402
+from cuboidlib.train import TrainConfig  # noqa: E402
 
 SCRIPTS = (table3, table4, table5, table6, fig11, table12, paper_vs_code)
 
@@ -159,8 +161,8 @@ def test_nearest_cuboid_segmentation_picks_the_nearest_existing_cuboid():
     # the inner points face the cube they belong to: Eq. (5) measures to the face whose normal matches
     normals = torch.tensor([[[-1.0, 0, 0], [1.0, 0, 0], [-1.0, 0, 0], [1.0, 0, 0]]])
     shapes = ShapeSet(points, normals, None, torch.arange(1))
-    pred = CuboidPredictions(centers, quats, half, exists, torch.zeros(1, 4, dtype=torch.long))
-    everything = CuboidPredictions(centers, quats, half, torch.ones(1, 3, dtype=torch.bool), pred.segmentation)
+    pred = AbstractionBatch(Cuboids(centers, quats, half, exists), torch.zeros(1, 4, dtype=torch.long))
+    everything = AbstractionBatch(Cuboids(centers, quats, half, torch.ones(1, 3, dtype=torch.bool)), pred.labels)
     for distance in ("normal", "nearest_surface"):
         # by hand: x = 0.4 is 1.1 from cube 1 (its -x face at 1.5), 1.9 or 2.9 from cube 0, 0.1 or 0.9 from cube 2
         assert torch.equal(runner.nearest_cuboid_segmentation(shapes, pred, distance), torch.tensor([[0, 1, 1, 0]]))

@@ -14,7 +14,7 @@ import torch
 from cuboidlib.distance import point_to_cuboid_distance
 from cuboidlib.losses import compactness_loss, reconstruction_loss
 from cuboidlib.normalization import normalize
-from cuboidlib.fitting import FitConfig, FitResult, _optimise, fit_cuboids, initial_cuboids, kmeans
+from cuboidlib.fitting import FitConfig, FitResult, _optimise, fit_cuboids, initial_cuboids
 from cuboidlib.geometry import Cuboids, sample_cuboid_surfaces, world_to_local
 
 IDENTITY = [1.0, 0.0, 0.0, 0.0]
@@ -91,25 +91,6 @@ def test_fit_config_replace_changes_one_field_and_validates():
 # ----------------------------------------------------------------------------------------------
 # k-means and the initialisation
 # ----------------------------------------------------------------------------------------------
-
-
-def test_kmeans_finds_well_separated_blobs_and_is_repeatable():
-    g = torch.Generator().manual_seed(0)
-    true_centers = torch.tensor([[-3.0, 0, 0], [0, 3.0, 0], [0, 0, 3.0]])
-    points = (true_centers.repeat_interleave(50, 0) + 0.1 * torch.randn(150, 3, generator=g))[None]
-    centers, labels = kmeans(points, 3, generator=torch.Generator().manual_seed(1))
-    # every true blob gets its own centre, within a few standard errors of the blob mean
-    distance = torch.cdist(true_centers, centers[0])
-    assert distance.amin(dim=1).max() < 0.1
-    assert len(set(distance.argmin(dim=1).tolist())) == 3
-    assert all(len(set(labels[0, 50 * k : 50 * (k + 1)].tolist())) == 1 for k in range(3))
-    again, _ = kmeans(points, 3, generator=torch.Generator().manual_seed(1))
-    assert torch.equal(centers, again)
-
-
-def test_kmeans_rejects_more_clusters_than_points():
-    with pytest.raises(ValueError, match=r"k must be an integer in \[1, N\]"):
-        kmeans(torch.zeros(1, 4, 3), 5)
 
 
 @pytest.mark.parametrize("init", ["kmeans", "random"])

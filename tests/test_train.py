@@ -16,14 +16,8 @@ from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, load_model
 from cuboidlib.cli import main
 from cuboidlib.losses import LossConfig
 from cuboidlib.model import ModelConfig
-from cuboidlib.train import (
-    TrainConfig,
-    Trainer,
-    TrainingDiverged,
-    load_splits,
-    split_indices,
-    validation_loss,
-)
+from cuboidlib.dataset import load_splits, split_indices
+from cuboidlib.train import TrainConfig, Trainer, TrainingDiverged, validation_loss
 
 # A network small enough for a step to take milliseconds; same structure as the paper's.
 TINY_MODEL = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
@@ -89,6 +83,8 @@ def test_partial_config_file_fills_in_defaults(tmp_path):
         ({"model": {"k": 0}}, "ModelConfig.k"),
         ({"loss": {"distance": "hausdorff"}}, "distance must be one of"),
         ({"learning_rate": 1e-3}, "unknown TrainConfig key"),
+        ({"lr_schedule": "step"}, "lr_schedule must be one of"),
+        ({"lr_final": 1.0}, "lr_final must be a number between 0 and lr"),
     ],
 )
 def test_bad_config_values_are_refused(change, match):
@@ -232,6 +228,35 @@ def test_resume_refuses_a_different_configuration(tmp_path, tiny):
     # budget and bookkeeping fields may change
     Trainer(config.replace(max_steps=4, validate_every=2, checkpoint_every=1), tmp_path, resume=True, quiet=True,
             splits=splits)
+
+
+def test_cosine_schedule_goes_from_lr_to_lr_final_and_resumes_exactly(tmp_path, tiny):
+    config, splits = tiny
+    config = config.replace(lr=1e-3, lr_schedule="cosine", lr_final=1e-4)
+    trainer = Trainer(config, tmp_path / "full", quiet=True, splits=splits)
+    rates = [trainer.learning_rate(step) for step in range(trainer.total_steps)]
+    assert rates[0] == pytest.approx(1e-3) and rates[-1] == pytest.approx(1e-4)
+    assert rates[trainer.total_steps // 2] == pytest.approx(0.5 * (1e-3 + 1e-4), rel=0.15)
+    assert all(a >= b for a, b in zip(rates, rates[1:]))
+    trainer.run()
+    assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(1e-4)
+    with pytest.raises(ValueError, match="resume it with the same epochs / max_steps"):
+        Trainer(config.replace(max_steps=4), tmp_path / "full", resume=True, quiet=True, splits=splits)
+    assert Trainer(config.replace(lr_schedule="constant"), tmp_path / "c", quiet=True, splits=splits).learning_rate(7) == 1e-3
+
+
+def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
+    config, splits = tiny
+    Trainer(config.replace(max_steps=3), tmp_path / "first", quiet=True, splits=splits).run()
+    first = _weights(tmp_path / "first" / "best.pt")
+    second = Trainer(config.replace(init_from=str(tmp_path / "first" / "best.pt")), tmp_path / "second", quiet=True,
+                     splits=splits)
+    _assert_same_state(first, {k: v for k, v in second.model.state_dict().items()})
+    with pytest.raises(CheckpointMismatch, match=r"init_from .*num_cuboids: checkpoint has 4, requested 5"):
+        Trainer(config.replace(init_from=str(tmp_path / "first" / "best.pt"), model={"num_cuboids": 5}),
+                tmp_path / "third", quiet=True, splits=splits)
+    with pytest.raises(FileNotFoundError, match="no such checkpoint"):
+        Trainer(config.replace(init_from=str(tmp_path / "missing.pt")), tmp_path / "fourth", quiet=True, splits=splits)
 
 
 def test_a_run_folder_is_never_overwritten_by_accident(tmp_path, tiny):

@@ -1,0 +1,90 @@
+"""Plumbing shared by every configuration: the dict / JSON round trip, config files, seeds, devices.
+
+:class:`ConfigDict` gives the configuration dataclasses (:class:`~cuboidlib.model.ModelConfig`,
+:class:`~cuboidlib.losses.LossConfig`, :class:`~cuboidlib.train.TrainConfig`) one ``to_dict`` /
+``from_dict`` with one wording of its errors. :func:`read_config_file` reads a JSON config file,
+:func:`derive_seed` makes independent random streams from one seed, and :func:`resolve_device`
+turns "auto" / "cpu" / "cuda[:i]" into a ``torch.device``.
+
+Example::
+
+    >>> from cuboidlib.model import ModelConfig
+    >>> ModelConfig.from_dict({"num_cuboids": 8}).num_cuboids
+    8
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["ConfigDict", "read_config_file", "derive_seed", "resolve_device"]
+
+
+def _json_types(value):
+    """Tuples become lists, recursively (JSON has no tuples)."""
+    if isinstance(value, (list, tuple)):
+        return [_json_types(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _json_types(v) for k, v in value.items()}
+    return value
+
+
+class ConfigDict:
+    """Mixin for configuration dataclasses: ``to_dict`` (JSON types) and its inverse ``from_dict``."""
+
+    def to_dict(self) -> dict:
+        """The configuration as a dict of JSON types (tuples become lists)."""
+        return _json_types(dataclasses.asdict(self))
+
+    @classmethod
+    def from_dict(cls, data: dict):
+        """Inverse of :meth:`to_dict`; unknown keys are an error, missing keys take the defaults."""
+        if not isinstance(data, dict):
+            raise TypeError(f"{cls.__name__}.from_dict expects a dict, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown {cls.__name__} key(s) {unknown}; known keys are {sorted(known)}")
+        return cls(**data)
+
+
+def read_config_file(path: str | os.PathLike) -> dict:
+    """The JSON object of a config file as it is (a partial config dict; checked when used)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such config file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a config file must hold a JSON object, got {type(data).__name__}")
+    return data
+
+
+def derive_seed(*keys: int) -> int:
+    """A 63-bit seed from a tuple of non-negative integers (independent streams for different keys)."""
+    return int(np.random.SeedSequence([int(k) for k in keys]).generate_state(2, np.uint64)[0] >> np.uint64(1))
+
+
+def resolve_device(name: str) -> torch.device:
+    """"auto" -> CUDA when available, else CPU; otherwise ``torch.device(name)`` (CUDA must exist)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}") from exc
+    if device.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
+    return device
