@@ -11,6 +11,9 @@ writes a JSON card beside it (``chair.json``) holding
 * ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run, and the
   validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
   saturation at every validation), with its values at 15, 30 and 60 minutes;
+* ``initialised_from`` (runs that started from another run's weights, ``init_from``): that checkpoint
+  and, when its run folder is still there, its config and the same training summary, so a card of a
+  two-stage recipe holds both stages;
 * ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
 * ``translation_head`` (networks trained with centroid centres only, see :func:`fit_translation_head`):
   how well the refitted translation head predicts the centroids on the validation split;
@@ -155,6 +158,20 @@ def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridg
         head.bias.copy_(solution[-1].to(head.bias))
 
 
+def _earlier_stage(config: TrainConfig) -> dict | None:
+    """For a run started from another run's weights (``init_from``): that checkpoint, its run's config
+    and training summary (when its folder still holds them), and the seconds of both stages together."""
+    if config.init_from is None:
+        return None
+    path = Path(config.init_from)
+    out: dict = {"checkpoint": str(path)}
+    if (path.parent / "config.json").is_file() and (path.parent / "log.csv").is_file():
+        step = load_checkpoint(path).get("step")
+        out["config"] = TrainConfig.load_json(path.parent / "config.json").to_dict()
+        out["training"] = _training_summary(path.parent, step)
+    return out
+
+
 def publish_run(
     run_dir: str | os.PathLike,
     dest: str | os.PathLike,
@@ -172,6 +189,7 @@ def publish_run(
     state = load_checkpoint(run_dir / "best.pt")
     training = _training_summary(run_dir, state.get("step"))
     config = TrainConfig.from_dict(state["config"])
+    earlier = _earlier_stage(config)
     splits = load_splits(config)
     translation = None
     if config.loss_config.centers_from_allocation:
@@ -205,6 +223,7 @@ def publish_run(
                     "torch": torch.__version__, "python": platform.python_version(),
                     "device": config.device},
         "training": training,
+        **({"initialised_from": earlier} if earlier else {}),
         "config": config.to_dict(),
         **({"translation_head": translation} if translation else {}),
         "test": {"split": "test", "n_shapes": len(shapes), "evaluation_seconds": round(time.perf_counter() - start, 1),

@@ -6,10 +6,10 @@ model (:class:`~cuboidlib.model.ModelConfig`) and the loss (:class:`~cuboidlib.l
 and round-trips through JSON. :class:`Trainer` runs the loop and the ``cuboidlib train`` command
 wraps it.
 
-**Data.** A procedural collection (:func:`cuboidlib.shapes.make_collection`) or a folder of point
-cloud / mesh files (read through :class:`cuboidlib.dataset.PointCloudDataset`), held in memory as
-(S, N, 3) tensors and split into train / validation / test by a seeded permutation
-(:func:`split_indices`). Model selection (``best.pt``) uses the validation loss only; the test
+**Data** (:mod:`cuboidlib.dataset`). A procedural collection (:func:`cuboidlib.shapes.make_collection`)
+or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
+validation / test by a seeded permutation (:func:`cuboidlib.dataset.split_indices`). The committed
+networks' recipes are :func:`course_config`. Model selection (``best.pt``) uses the validation loss only; the test
 split is never touched during training (``cuboidlib evaluate`` scores it).
 
 **Determinism and exact resume.** Randomness comes from three sources only: the order of the shapes
@@ -36,6 +36,10 @@ of its own shard, and DDP copies rank 0's buffers (the running statistics) to th
 start of every forward pass, so these differ between ranks only by each rank's last update.
 Checkpoints hold rank 0's. Only rank 0 validates and writes files; each rank draws its own sampling
 noise, and a run must be resumed with the number of processes that wrote its checkpoint.
+
+Why one file: the configuration, the loop and its checkpoints change together (every field of
+:class:`TrainConfig` is read by the loop, and resuming must know which fields may change); the data
+it reads lives in :mod:`cuboidlib.dataset`, the release of a trained network in :mod:`cuboidlib.release`.
 """
 
 from __future__ import annotations
@@ -60,6 +64,7 @@ from .shapes import CATEGORIES
 
 __all__ = [
     "TrainConfig",
+    "course_config",
     "validation_loss",
     "TrainingDiverged",
     "TrainResult",
@@ -224,6 +229,26 @@ class TrainConfig(ConfigDict):
     def run_defining(self) -> dict:
         """The fields that determine the weights of every step (all but :data:`RESUMABLE_CHANGES`)."""
         return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
+
+
+def course_config(category: str, **changes) -> TrainConfig:
+    """The recipe of the committed network of ``category``: ``configs/<category>.json`` beside the
+    committed checkpoints (:func:`cuboidlib.applications.checkpoint_dir`), the defaults of
+    :class:`TrainConfig` below it, and ``changes`` on top (``model`` / ``loss`` dicts are merged).
+
+    Example::
+
+        >>> course_config("chair", max_minutes=5).model_config.num_cuboids
+        16
+    """
+    from .applications import checkpoint_dir
+
+    path = checkpoint_dir() / "configs" / f"{category}.json"
+    if not path.is_file():
+        raise ValueError(f"no committed recipe for {category!r} ({path} does not exist); "
+                         f"the categories with one: {sorted(p.stem for p in path.parent.glob('*.json'))}")
+    config = TrainConfig.load_json(path)
+    return config.replace(**changes) if changes else config
 
 
 def _check_int(value, name: str, minimum: int) -> None:

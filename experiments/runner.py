@@ -37,6 +37,10 @@ table; this module does everything else, the same way for all of them:
 A script is an :class:`Experiment`; ``main(experiment)`` parses the common command line
 (``--quick --steps --shapes --seeds --jobs --out --runs-dir --plan``), prints the plan with its
 estimated time, runs, prints the table and writes the results.
+
+Why one file: a run's description (:class:`Run`), how it is executed and scored, its time estimate
+and the shared command line are read together when a script is written; the summaries and result
+files are in :mod:`summaries`, the data, noise and recipes in the library.
 """
 
 from __future__ import annotations
@@ -68,6 +72,7 @@ from cuboidlib.release import git_commit
 from cuboidlib.dataset import ShapeSet, load_splits, split_indices
 from cuboidlib.dataset import add_noise, noisy_splits
 from cuboidlib.train import TrainConfig, Trainer
+from cuboidlib.train import course_config as train_course_config
 from summaries import (  # noqa: F401 - the scripts use them through this module
     CD_CONVENTION,
     machine,
@@ -114,7 +119,6 @@ __all__ = [
 REPO = Path(__file__).resolve().parents[1]
 RESULTS_DIR = REPO / "experiments" / "results"
 RUNS_DIR = REPO / "runs" / "experiments"
-CONFIG_DIR = REPO / "data_samples" / "checkpoints" / "configs"
 
 #: The paper's number of cuboids M per category (Sec. 4.1); the committed checkpoints use the same.
 COURSE_NUM_CUBOIDS = {"airplane": 20, "chair": 16, "table": 14, "animal": 16}
@@ -166,16 +170,16 @@ DATA_NOTE = (
 def course_config(category: str, steps: int, **changes) -> TrainConfig:
     """The course-scale :class:`~cuboidlib.train.TrainConfig` of ``category`` trained for ``steps`` steps.
 
-    Read from the committed checkpoint's config file, ``data_samples/checkpoints/configs/<category>.json``
-    (the defaults of :class:`~cuboidlib.train.TrainConfig` below it), so experiments and checkpoints
-    cannot drift apart. The step budget replaces the file's (no time budget: runs are repeatable);
+    The committed network's recipe (:func:`cuboidlib.train.course_config`, read from
+    ``data_samples/checkpoints/configs/<category>.json``), so experiments and checkpoints cannot drift
+    apart. The step budget replaces the file's (no time budget: runs are repeatable);
     validation (model selection) every 100 steps and at the end; one checkpoint at the end.
     ``changes`` replace fields (``model`` / ``loss`` dicts are merged, see ``TrainConfig.replace``).
     """
     if category not in COURSE_NUM_CUBOIDS:
         raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
-    base = TrainConfig.load_json(CONFIG_DIR / f"{category}.json").replace(
-        max_steps=steps, max_minutes=None, checkpoint_every=steps, validate_every=min(100, steps))
+    base = train_course_config(category, max_steps=steps, max_minutes=None, checkpoint_every=steps,
+                               validate_every=min(100, steps))
     return base.replace(**changes) if changes else base
 
 

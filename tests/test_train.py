@@ -492,6 +492,23 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     assert "squared L2" in card["test"]["table"]
 
 
+def test_card_of_a_two_stage_recipe_holds_both_stages(tmp_path, tiny, capsys):
+    from cuboidlib.release import read_card
+
+    config, _ = tiny
+    first = config.replace(max_steps=3).save_json(tmp_path / "first.json")
+    assert main(["train", "--config", str(first), "--out", str(tmp_path / "stage1"), "--quiet"]) == 0
+    second = config.replace(max_steps=2, lr_schedule="cosine", init_from=str(tmp_path / "stage1" / "best.pt"))
+    dest = tmp_path / "chair.pt"
+    assert main(["train", "--config", str(second.save_json(tmp_path / "second.json")), "--out", str(tmp_path / "stage2"),
+                 "--quiet", "--release", str(dest)]) == 0
+    card = read_card(dest)
+    earlier = card["initialised_from"]
+    assert earlier["checkpoint"] == str(tmp_path / "stage1" / "best.pt")
+    assert earlier["config"]["max_steps"] == 3 and earlier["training"]["steps"] == 3
+    assert card["config"]["init_from"] == earlier["checkpoint"] and card["training"]["steps"] == 2
+
+
 def test_release_of_a_centroid_network_fits_its_translation_head(tmp_path, tiny):
     from cuboidlib.release import read_card, translation_head_error
 
@@ -533,3 +550,15 @@ def test_read_card_rejects_missing_and_foreign_files(tmp_path):
     (tmp_path / "x.json").write_text('{"a": 1}')
     with pytest.raises(ValueError, match="not a cuboidlib checkpoint card"):
         read_card(tmp_path / "x.pt")
+
+
+def test_course_config_is_the_committed_recipe():
+    from cuboidlib.train import course_config
+
+    for category in ("airplane", "chair", "table", "animal"):
+        config = course_config(category)
+        assert config.category == category
+        assert config == TrainConfig.load_json(Path(__file__).parents[1] / f"data_samples/checkpoints/configs/{category}.json")
+    assert course_config("chair", max_minutes=5, loss={"lambda_compact": 0.5}).loss_config.lambda_compact == 0.5
+    with pytest.raises(ValueError, match="no committed recipe for 'lamp'"):
+        course_config("lamp")
