@@ -38,7 +38,12 @@ from .export import (
 from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
 
-__all__ = ["Abstraction", "AbstractionBatch", "abstract", "result_files", "frame_rotation", "AXES"]
+__all__ = ["Abstraction", "AbstractionBatch", "abstract", "result_files", "frame_rotation", "AXES", "REFINE_LR"]
+
+#: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``).
+#: The fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not
+#: (on 16 test chairs, 100 steps: Chamfer 1.57e-3 against 1.86e-3 with 0.01; the network: 2.34e-3).
+REFINE_LR = 0.003
 
 
 @dataclass
@@ -373,7 +378,22 @@ def _by_network(shape, model, n_points, seed, threshold, centers, device, rotati
     out = abstract_shapes(net, pc.points, threshold, centers_from_allocation=centroids)
     method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
               "threshold": threshold, "centers": "allocation" if centroids else "predicted", "points": len(pc)}
-    return pc, out.cuboids.to(device="cpu"), out.labels[0].cpu(), method
+    return pc, out, method
+
+
+def _refined(pc, out, steps: int, fit_config, seed: int, progress: bool):
+    """Refinement: the per-shape fit started from the network's cuboids and allocation (same slots)."""
+    from .fitting import FitConfig, fit_cuboids
+
+    config = (fit_config if fit_config is not None else FitConfig(seed=seed, lr=REFINE_LR)).replace(
+        steps=steps, normalize=False)
+    points = torch.as_tensor(pc.points, dtype=out.cuboids.centers.dtype, device=out.cuboids.centers.device)[None]
+    normals = torch.as_tensor(pc.normals, dtype=points.dtype, device=points.device)[None]
+    fit = fit_cuboids(points, normals, config, progress=progress, start=out)
+    method = {"refine": {"steps": steps, "function": "cuboidlib.fitting.fit_cuboids(start=network)",
+                         "lambda_compact": config.lambda_compact, "seed": config.seed,
+                         "converged": bool(fit.converged[0])}}
+    return fit, method
 
 
 def abstract(
@@ -390,6 +410,7 @@ def abstract(
     progress: bool = False,
     up: str = "y",
     front: str | None = None,
+    refine: int = 0,
 ) -> Abstraction:
     """Cuboid abstraction and segmentation of one shape, in its own coordinates.
 
@@ -412,6 +433,10 @@ def abstract(
         progress: show the fit's progress bar.
         up, front: the input's up axis and the direction its front faces (:func:`frame_rotation`); the
             networks were trained on +y up, facing +z. The result is written back in the input's axes.
+        refine: with a network, this many steps of the per-shape fit started from the network's
+            cuboids and allocation (``fit_cuboids(start=...)``; settings from ``fit_config``, default
+            ``FitConfig(lr=REFINE_LR)``): tighter cuboids on this shape that keep the network's cuboid
+            slots, and so its part correspondence. 100 steps take about a second on a CPU.
 
     Returns an :class:`Abstraction` (cuboids normalised, with the normalisation to write them back).
     """
@@ -419,6 +444,10 @@ def abstract(
 
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
+        raise ValueError(f"refine must be a non-negative number of steps, got {refine!r}")
+    if refine and model is None:
+        raise ValueError("refine starts the fit from a network's cuboids: give a model (model=None fits from scratch)")
     rotation = frame_rotation(up, front)
     source = Path(shape).name if isinstance(shape, (str, os.PathLike)) else getattr(shape, "source", None)
     if model is None:
@@ -433,8 +462,12 @@ def abstract(
                   "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
                   "converged": bool(fit.converged[0])}
     else:
-        pc, cuboids, segmentation, method = _by_network(shape, model, n_points, seed, threshold, centers, device,
-                                                        rotation, part_names, source)
+        pc, out, method = _by_network(shape, model, n_points, seed, threshold, centers, device, rotation,
+                                      part_names, source)
+        if refine:
+            out, refined = _refined(pc, out, refine, fit_config, seed, progress)
+            method.update(refined)
+        cuboids, segmentation = out.cuboids.to(device="cpu"), out.labels[0].cpu()
     convention = ChamferConvention()
     points = torch.as_tensor(pc.points, dtype=cuboids.centers.dtype)[None]
     chamfer = float(cuboid_chamfer_distance(

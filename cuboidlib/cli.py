@@ -459,36 +459,152 @@ def _part_names(text: str) -> tuple[str, ...]:
     return names
 
 
-def _save_and_report(args, result, start: float, bar) -> int:
-    """Write the result of fit / abstract (cuboidlib.abstraction) and print its summary."""
-    import time
+def _add_shape_argument(p) -> None:
+    p.add_argument("shape", metavar="SHAPE", nargs="+",
+                   help="mesh or point cloud files, folders (every mesh and point cloud directly inside) or quoted "
+                   "glob patterns ('scans/*.ply'); several shapes are processed in one run, a file that fails is "
+                   f"reported and skipped, and {SUMMARY_FILE} lists every shape")
 
-    bar.set_description("writing files")
-    written = result.save(args.out, formats=args.mesh_format, normalized=args.normalized)
-    _record(args, written.values())
-    bar.update(1)
-    bar.close()  # before the summary is printed (closing again on leaving the caller's "with" is harmless)
+
+#: The table of a run over several shapes, written into --out.
+SUMMARY_FILE = "summary.csv"
+
+
+def _shape_files(items: list[str]) -> list[str]:
+    """The input files of SHAPE arguments: files as given, folders and glob patterns expanded (sorted)."""
+    import glob
+    from pathlib import Path
+
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES
+
+    known = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
+    files: list[str] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(str(f) for f in path.iterdir() if f.is_file() and f.suffix.lower() in known)
+            if not found:
+                raise UserError(f"{path}: a folder without mesh or point cloud files ({' '.join(sorted(known))})")
+            files += found
+        elif not path.exists() and glob.has_magic(item):
+            found = sorted(f for f in glob.glob(item) if Path(f).is_file() and Path(f).suffix.lower() in known)
+            if not found:
+                raise UserError(f"{item}: no mesh or point cloud file matches this pattern")
+            files += found
+        else:
+            if len(items) == 1:
+                _check_shape_file(item)  # one named file: its problems are the run's errors
+            files.append(item)
+    return list(dict.fromkeys(files))  # each file once, in order
+
+
+def _stem_for(path: str, taken: set[str]) -> str:
+    """A result name for ``path``: its file name without suffix, made unique within the run."""
+    from pathlib import Path
+
+    stem, k = Path(path).stem, 1
+    while stem in taken:
+        k += 1
+        stem = f"{Path(path).stem}_{k}"
+    taken.add(stem)
+    return stem
+
+
+def _run_shapes(args, shapes: list[str], one, what: str) -> int:
+    """Abstract every shape with ``one(path, progress)``, write its files, report; with several shapes a
+    failure is reported and skipped, and SUMMARY_FILE lists every shape. Exit code 1 if any failed."""
+    import time
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    if len(shapes) == 1:
+        start = time.perf_counter()
+        with tqdm(total=2, desc=what, disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
+            result = one(shapes[0], _bars(args))
+            bar.update(1)
+            written = _save(args, result, None, bar)
+        _report(args, result, written, time.perf_counter() - start)
+        _record(args, written)
+        return 0
+    rows, files, taken = [], [], set()
+    for path in tqdm(shapes, desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
+        start = time.perf_counter()
+        try:
+            _check_shape_file(path)
+            result = one(path, False)
+            written = _save(args, result, _stem_for(path, taken), None)
+        except (UserError, ValueError, OSError, FloatingPointError) as exc:
+            message = " ".join(str(exc).split()) or type(exc).__name__
+            message = message if path in message else f"{path}: {message}"
+            if not args.quiet:
+                tqdm.write(f"cuboidlib {args.command}: skipped {message}", file=sys.stderr)
+            rows.append({"shape": path, "status": "failed", "error": message,
+                         "seconds": f"{time.perf_counter() - start:.2f}"})
+            continue
+        files += written
+        rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
+                     "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
+                     "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
+        _record(args, files, complete=False)
+    files.append(_write_summary(args.out, rows))
+    _record(args, files)
+    failed = sum(r["status"] == "failed" for r in rows)
     if not args.quiet:
-        used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
-        print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
-              f"{result.chamfer:.4g} ({how}; on the normalised shape) | {time.perf_counter() - start:.1f} s")
-        print("wrote " + ", ".join(str(p) for p in written.values()))
-    return 0
+        print(f"{len(rows) - failed} of {len(rows)} shapes written to {args.out}"
+              + (f"; {failed} failed (see {SUMMARY_FILE})" if failed else "") + f"; summary: {files[-1]}")
+    return 1 if failed else 0
+
+
+def _save(args, result, stem: str | None, bar) -> list:
+    """Write one result (cuboidlib.abstraction) into --out; returns the paths written."""
+    if bar is not None:
+        bar.set_description("writing files")
+    written = result.save(args.out, stem=stem, formats=args.mesh_format, normalized=args.normalized)
+    if bar is not None:
+        bar.update(1)
+        bar.close()  # before the summary is printed (closing again on leaving the caller's "with" is harmless)
+    return list(written.values())
+
+
+def _report(args, result, written: list, seconds: float) -> None:
+    if args.quiet:
+        return
+    used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
+    print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
+          f"{result.chamfer:.4g} ({how}; on the normalised shape) | {seconds:.1f} s")
+    print("wrote " + ", ".join(str(p) for p in written))
+
+
+def _write_summary(folder, rows: list[dict]):
+    """SUMMARY_FILE in ``folder``: one row per shape (status, cuboids used, Chamfer distance, seconds, error)."""
+    import csv
+    import io
+    from pathlib import Path
+
+    from ._files import write_text_atomic
+
+    columns = ["shape", "status", "result", "cuboids_used", "cuboids", "chamfer", "seconds", "error"]
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    return write_text_atomic(Path(folder) / SUMMARY_FILE, text.getvalue())
 
 
 def _add_fit_command(sub) -> None:
     p = sub.add_parser(
         "fit",
-        help="fit cuboids to one mesh or point cloud (no network needed)",
-        description="Fit M cuboids to one shape by gradient descent on the paper's losses (reconstruction "
+        help="fit cuboids to meshes or point clouds (no network needed)",
+        description="Fit M cuboids to each shape by gradient descent on the paper's losses (reconstruction "
         "with the normal-aware distance, Eq. 4-5, and compactness, Eq. 6; cuboidlib.fitting), then keep the "
         "cuboids that cover points. Reads any mesh (.obj .ply .off .stl .glb .gltf, sampled with --points "
         "points) or point cloud (.ply .txt .pts .xyz .npy, normals estimated when missing). Writes "
         "DIR/NAME.json (cuboids, see cuboidlib.export), DIR/NAME.glb (cuboids coloured by index) and "
         "DIR/NAME_segmentation.ply (points coloured and labelled by cuboid), in the input's coordinates.",
     )
-    p.add_argument("shape", metavar="SHAPE", help="a mesh or point cloud file")
-    _add_output_options(p, "NAME.json, NAME.glb and NAME_segmentation.ply")
+    _add_shape_argument(p)
+    _add_output_options(p, "NAME.json, NAME.glb and NAME_segmentation.ply per shape")
     p.add_argument("--cuboids", type=_positive_int, default=_FitDefault("num_cuboids"), metavar="M",
                    help="cuboid slots; the fit decides how many are used (default: %(default)s)")
     p.add_argument("--steps", type=_non_negative_int, default=_FitDefault("steps"),
@@ -502,13 +618,8 @@ def _add_fit_command(sub) -> None:
 
 
 def _cmd_fit(args) -> int:
-    import time
-
-    start = time.perf_counter()
+    shapes = _shape_files(args.shape)
     _check_out_dir(args)
-    _check_shape_file(args.shape)
-
-    from tqdm import tqdm
 
     from .abstraction import abstract
     from .fitting import FitConfig
@@ -517,48 +628,50 @@ def _cmd_fit(args) -> int:
         if isinstance(getattr(args, name), _FitDefault):
             setattr(args, name, getattr(args, name).value())
     config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
-    result = abstract(args.shape, None, n_points=args.points, seed=args.seed, fit_config=config,
-                      part_names=args.part_names, progress=_bars(args), up=args.up, front=args.front)
-    with tqdm(total=1, desc="writing", disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
-        return _save_and_report(args, result, start, bar)
+
+    def one(path: str, progress: bool):
+        return abstract(path, None, n_points=args.points, seed=args.seed, fit_config=config,
+                        part_names=args.part_names, progress=progress, up=args.up, front=args.front)
+
+    return _run_shapes(args, shapes, one, "fitting")
 
 
 def _add_abstract_command(sub) -> None:
     p = sub.add_parser(
         "abstract",
-        help="cuboids and segmentation of one shape by a trained network",
-        description="Run a trained network (z = mu) on one mesh or point cloud: M cuboids with existence "
+        help="cuboids and segmentation of shapes by a trained network",
+        description="Run a trained network (z = mu) on meshes or point clouds: M cuboids with existence "
         "and the point-to-cuboid segmentation (Sec. 3). Same inputs and outputs as 'cuboidlib fit'. The shape "
         "is normalised like the training shapes (bounding box centred, diagonal 1, +y up, facing +z).",
     )
-    p.add_argument("shape", metavar="SHAPE", help="a mesh or point cloud file")
+    _add_shape_argument(p)
     _add_model_options(p)
-    _add_output_options(p, "NAME.json, NAME.glb and NAME_segmentation.ply")
+    _add_output_options(p, "NAME.json, NAME.glb and NAME_segmentation.ply per shape")
     p.add_argument("--points", type=_positive_int, metavar="N",
                    help="points sampled on a mesh, or kept of a larger point cloud (default: as in training)")
     p.add_argument("--centers", choices=("auto", "predicted", "allocation"), default="auto",
                    help="cuboid centres: the predicted translations, the allocation-weighted centroids of the "
                    "points, or auto = what the network was trained with (default)")
+    p.add_argument("--refine", type=_non_negative_int, default=0, metavar="STEPS",
+                   help="then this many steps of the per-shape fit, started from the network's cuboids and "
+                   "allocation: tighter cuboids that keep the network's cuboid slots, and so its parts "
+                   "(default 0: the network alone; 100 takes about a second)")
     _add_shape_options(p)
     p.set_defaults(func=_cmd_abstract)
 
 
 def _cmd_abstract(args) -> int:
-    import time
-
-    from tqdm import tqdm
+    shapes = _shape_files(args.shape)
+    _check_out_dir(args)
 
     from .abstraction import abstract
 
-    start = time.perf_counter()
-    _check_out_dir(args)
-    _check_shape_file(args.shape)
-    with tqdm(total=2, desc="running the network", disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
-        result = abstract(args.shape, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
-                          centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
-                          front=args.front)
-        bar.update(1)
-        return _save_and_report(args, result, start, bar)
+    def one(path: str, progress: bool):
+        return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
+                        centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
+                        front=args.front, refine=args.refine, progress=progress)
+
+    return _run_shapes(args, shapes, one, "running the network")
 
 
 def _stems(prefix: str, count: int) -> list[str]:

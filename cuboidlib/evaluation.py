@@ -68,7 +68,7 @@ def predict_cuboids(
     """Run the network in evaluation mode (z = mu) on every shape (:func:`cuboidlib.applications.abstract_shapes`).
 
     Returns the predictions (an :class:`~cuboidlib.abstraction.AbstractionBatch` on the CPU whose
-    ``labels`` are the segmentation; a cuboid exists when its existence probability exceeds
+    ``labels`` are the segmentation, with the allocation ``W``; a cuboid exists when its existence probability exceeds
     0.5, and a shape with none keeps its most probable cuboid, :func:`existence_mask`; every point
     is segmented to its most allocated existing cuboid) and the number of shapes that needed that
     fallback. ``centers_from_allocation``: place each cuboid at the allocation-weighted centroid of
@@ -78,7 +78,7 @@ def predict_cuboids(
     """
     out = abstract_shapes(model, shapes.points, 0.5, centers_from_allocation, batch_size)
     empty = ~(out.exist_probs > 0.5).any(dim=1)
-    pred = AbstractionBatch(out.cuboids.to(device="cpu"), out.labels.cpu(), exist_probs=out.exist_probs.cpu())
+    pred = AbstractionBatch(out.cuboids.to(device="cpu"), out.labels.cpu(), out.W.cpu(), out.exist_probs.cpu())
     return pred, int(empty.sum())
 
 

@@ -293,7 +293,8 @@ def _converged(totals: torch.Tensor, tol: float) -> torch.Tensor:
     return (last - before).abs() <= tol * last.abs().clamp_min(1e-12)
 
 
-def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool = False) -> FitResult:
+def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool = False,
+                start: AbstractionBatch | None = None) -> FitResult:
     """Fit ``config.num_cuboids`` cuboids to each point cloud by gradient descent (see the module doc).
 
     points, normals: (N, 3) for one shape or (B, N, 3) for B shapes fitted at once (independently,
@@ -309,6 +310,16 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
     the normals). ``progress=True`` shows a tqdm bar with the current loss terms and reports shapes
     that have not converged.
 
+    ``start`` (refinement): instead of the k-means start, begin from given cuboids and allocation,
+    typically a network's (:func:`cuboidlib.applications.abstract_shapes`): an
+    :class:`~cuboidlib.abstraction.AbstractionBatch` of the same B shapes and N points, in the points'
+    coordinates, with its soft allocation ``W`` (or only ``labels``). Its M slots are kept: the number
+    of cuboids is M (``config.num_cuboids`` is ignored), slots that do not exist in the start get no
+    points and stay absent, and a slot exists at the end when it still holds a point, so the result
+    keeps the start's cuboid indices (and with them a network's part correspondence). The initial
+    logits are log W (W clamped at 1e-4), so the allocation changes slowly, and only where the
+    geometry asks for it; ``config.restarts`` must be 1.
+
     Returns a :class:`FitResult` (always batch-first). Raises ``ValueError`` for bad inputs and
     ``FloatingPointError`` if a loss becomes NaN or infinite (the message names the step and the
     shape; lower ``lr``/``lr_logits``).
@@ -318,6 +329,9 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
     start_time = time.perf_counter()
     p, nrm = _check_inputs(points, normals)
     b, n, _ = p.shape
+    if start is not None:
+        _check_start(start, b, n, config)
+        config = config.replace(num_cuboids=start.num_segments)
     if n < config.num_cuboids:
         raise ValueError(f"points has N = {n} points per shape, fewer than num_cuboids = {config.num_cuboids}")
     if config.normalize:
@@ -329,7 +343,8 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
         center, scale = torch.zeros(b, 3, dtype=p.dtype, device=p.device), torch.ones(b, dtype=p.dtype, device=p.device)
 
     r = config.restarts
-    run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress)
+    begin = None if start is None else _normalised_start(start, center, scale, p)
+    run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress, begin)
     # keep, for every shape, the restart with the lowest final loss (rows b * R ... b * R + R - 1)
     best = run["final_loss"].view(b, r).argmin(dim=1) + torch.arange(b, device=p.device) * r
     pick = {key: value[best] for key, value in run.items() if key != "records"}
@@ -361,15 +376,52 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
     )
 
 
-def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: bool) -> dict:
+def _check_start(start: AbstractionBatch, b: int, n: int, config: FitConfig) -> None:
+    if not isinstance(start, AbstractionBatch):
+        raise TypeError(f"start must be an AbstractionBatch, got {type(start).__name__}")
+    if len(start) != b:
+        raise ValueError(f"start holds {len(start)} shape(s) but points holds {b}")
+    if start.W is None and start.labels is None:
+        raise ValueError("start needs an allocation: its W or its labels")
+    allocation = start.W if start.W is not None else start.labels
+    if tuple(allocation.shape[:2]) != (b, n):
+        raise ValueError(f"start's allocation covers {tuple(allocation.shape[:2])} (shapes, points), "
+                         f"the points are {(b, n)}")
+    if config.restarts != 1:
+        raise ValueError("a refinement starts from one given solution: config.restarts must be 1")
+
+
+def _normalised_start(start: AbstractionBatch, center: torch.Tensor, scale: torch.Tensor, p: torch.Tensor) -> dict:
+    """The start's cuboids in the coordinates the fit works in, its allocation as logits, its existing slots."""
+    c = start.cuboids
+    like = dict(dtype=p.dtype, device=p.device)
+    centers = (c.centers.to(**like) - center[:, None]) / scale[:, None, None]
+    half_sizes = (c.half_sizes.to(**like) / scale[:, None, None]).clamp_min(1e-4)
+    if start.W is not None:
+        W = start.W.to(**like)
+    else:
+        W = torch.nn.functional.one_hot(start.labels.to(p.device), c.num_cuboids).to(**like)
+    allowed = c.exists.to(p.device)
+    return {"centers": centers, "quaternions": c.quaternions.to(**like), "half_sizes": half_sizes,
+            "logits": W.clamp_min(1e-4).log(), "allowed": allowed}
+
+
+def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: bool, start: dict | None = None) -> dict:
     """Adam on the free variables of every row of (B, N, 3) normalised points; see :func:`fit_cuboids`.
 
+    ``start``: initial centers, quaternions, half_sizes (B, M, ...), logits (B, N, M) and the slots
+    ``allowed`` to hold points (B, M) bool, instead of :func:`initial_cuboids`.
     Returns detached per-row tensors (centers, quaternions, half_sizes, W, portions, exists,
     final_loss, initial_*) and "records": per-step (steps, B) tensors of the loss terms.
     """
     b, n, _ = p.shape
     generator = torch.Generator().manual_seed(config.seed)
-    c0, q0, s0, logits0 = initial_cuboids(p, config, generator)
+    if start is None:
+        c0, q0, s0, logits0 = initial_cuboids(p, config, generator)
+        blocked = None
+    else:
+        c0, q0, s0, logits0 = start["centers"], start["quaternions"], start["half_sizes"], start["logits"]
+        blocked = ~start["allowed"][:, :, None]  # (B, M, 1): slots that may hold no point
     centers = c0.clone().requires_grad_(True)
     quat_raw = q0.clone().requires_grad_(True)
     log_sizes = s0.log().requires_grad_(True)
@@ -389,9 +441,10 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
         else:
             d = nearest_surface_distance(p, centers, quaternions, half_sizes, validate=False)
         if config.allocation == "nearest":
-            W = nearest_cuboid_allocation(d)
+            W = nearest_cuboid_allocation(d if blocked is None else d.masked_fill(blocked.transpose(1, 2), math.inf))
         else:  # logits are stored (B, M, N): a softmax over a short LAST axis is many times slower on CPU
-            W = torch.softmax(logits, dim=1).transpose(1, 2)
+            free = logits if blocked is None else logits.masked_fill(blocked, -math.inf)
+            W = torch.softmax(free, dim=1).transpose(1, 2)
         w = allocation_portions(W)
         recons = reconstruction_loss(W, d)
         compact = compactness_loss(w, config.eps_sps, average_over_cuboids=config.compactness_average)
@@ -426,7 +479,10 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
 
     with torch.no_grad():
         final_loss, _, _, W, w = evaluate(None)
-        exists = existence_targets(w, config.eps_ext) > 0
+        if blocked is None:
+            exists = existence_targets(w, config.eps_ext) > 0
+        else:  # a refinement keeps the start's slots that still hold a point
+            exists = torch.nn.functional.one_hot(W.argmax(dim=-1), W.shape[-1]).any(dim=1) & ~blocked[:, :, 0]
         exists |= w == w.amax(dim=-1, keepdim=True)  # at least one cuboid per shape
         quaternions = standardize_quaternion(quat_raw / torch.linalg.vector_norm(quat_raw, dim=-1, keepdim=True))
     return {

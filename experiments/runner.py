@@ -63,7 +63,7 @@ import torch
 
 from cuboidlib.checkpoint import load_model
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
-from cuboidlib.abstraction import AbstractionBatch
+from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
 from cuboidlib.evaluation import evaluate_baseline, predict_cuboids, score_cuboids
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.losses import compactness_loss
@@ -294,7 +294,8 @@ class Run:
       ``sigma_n`` (input noise at train and test time; also scored against the clean shapes),
       ``segmentation`` ("normal" / "nearest_surface": segment by the nearest existing cuboid under
       that distance instead of W), ``reference_points`` (also score against this many points of the
-      same test shapes), ``baseline`` (also score the k-means boxes with K = round(N_AC)).
+      same test shapes), ``baseline`` (also score the k-means boxes with K = round(N_AC)), ``refine``
+      (also score the network's result refined by this many steps of the per-shape fit started from it).
     """
 
     name: str
@@ -362,11 +363,23 @@ def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dic
         metrics.update(cd_reference=scores["reference"]["chamfer"][0]["value"],
                        nc_reference=scores["reference"]["normal_consistency"])
     results = [{"method": options.get("method", "network"), "metrics": metrics, "scores": scores}]
+    if options.get("refine"):
+        results.append(_refine_and_score(test, pred, options["refine"]))
     if options.get("baseline"):
         boxes = max(1, round(metrics["n_ac"]))
         base = evaluate_baseline(test, boxes)
         results.append({"method": "k-means boxes", "metrics": {**_metrics(base), "boxes": boxes}, "scores": base})
     return results
+
+
+def _refine_and_score(test: ShapeSet, pred: AbstractionBatch, steps: int) -> dict:
+    """The network's result refined by ``steps`` steps of the per-shape fit started from it (the cuboids and
+    allocation of ``pred``, :func:`cuboidlib.fitting.fit_cuboids` with ``start``), scored like the network."""
+    fit = fit_cuboids(test.points, test.normals, FitConfig(steps=steps, lr=REFINE_LR, normalize=False), start=pred)
+    scores = score_cuboids(test, fit)
+    scores.update(num_cuboids=fit.num_segments, refine_steps=steps, refine_seconds=round(fit.elapsed_s, 1),
+                  segmentation_kept=float((fit.labels == pred.labels).double().mean()))
+    return {"method": "network + refinement", "metrics": _metrics(scores), "scores": scores}
 
 
 def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:

@@ -9,7 +9,10 @@ split:
   k-means on positions and normals, one oriented bounding box per cluster, with K = the network's
   N_AC rounded;
 * **per-shape fitting**: :func:`cuboidlib.fitting.fit_cuboids` on every test shape (the paper's
-  losses minimised over free cuboids and a free allocation, M of the category, 300 Adam steps).
+  losses minimised over free cuboids and a free allocation, M of the category, 300 Adam steps);
+* **network + refinement** (``--refine STEPS``, default 100): the per-shape fit started from the
+  network's cuboids and allocation (``fit_cuboids(start=...)``, as ``cuboidlib abstract --refine``),
+  which keeps the network's cuboid slots and so its part correspondence.
 
 All three are scored the same way (:func:`cuboidlib.evaluation.score_cuboids`): Chamfer distance,
 normal consistency, mIoU by the paper's label transfer (Sec. 4.2), N_AC. The per-shape methods
@@ -44,7 +47,7 @@ PAPER = {
              "BSP-Net": {"airplane": 74.5, "chair": 82.1, "table": 90.3},
              "Ours": {"airplane": 64.2, "chair": 82.0, "table": 89.2}},
 }
-METHODS = ("network", "k-means boxes", "per-shape fitting")
+METHODS = ("network", "network + refinement", "k-means boxes", "per-shape fitting")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,6 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoints", metavar="DIR",
                    help="score the released checkpoints DIR/<category>.pt (e.g. data_samples/checkpoints) instead "
                         "of training; their data settings are used")
+    p.add_argument("--refine", type=int, default=100, metavar="STEPS",
+                   help="also score the network refined by STEPS steps of the per-shape fit (default 100; 0: not)")
     p.add_argument("--without-fitting", action="store_true",
                    help="leave out per-shape fitting (the slowest method: a few seconds for every test shape)")
 
@@ -61,6 +66,7 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
     if args.checkpoints and len(scale.seeds) > 1:
         raise ValueError("--checkpoints scores one released network per category; it takes no --seeds")
     runs = []
+    refine = (5 if scale.quick else args.refine) if args.refine else 0
     for category in args.categories:
         for seed in scale.seeds:
             key = {"category": category, "seed": seed}
@@ -72,10 +78,11 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
                 if config.category != category:
                     raise ValueError(f"{path} was trained on {config.category!r}, not {category!r}")
                 runs.append(runner.Run(f"{category}_network_seed{seed}", key, config, task="score",
-                                       options={"checkpoint": str(path), "baseline": True}))
+                                       options={"checkpoint": str(path), "baseline": True, "refine": refine}))
             else:
                 config = scale.config(category, seed)
-                runs.append(runner.Run(f"{category}_network_seed{seed}", key, config, options={"baseline": True}))
+                runs.append(runner.Run(f"{category}_network_seed{seed}", key, config,
+                                       options={"baseline": True, "refine": refine}))
             if args.without_fitting:
                 continue
             fit = scale.fit_config(config.model_config.num_cuboids, seed)

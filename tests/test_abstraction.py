@@ -180,3 +180,17 @@ def test_up_and_front_must_be_axes_at_right_angles():
         frame_rotation("w")
     with pytest.raises(ValueError, match="must be perpendicular"):
         frame_rotation("z", "-z")
+
+
+def test_refining_a_network_result_keeps_its_cuboid_slots_and_records_the_steps(table_cloud):
+    path, _ = table_cloud
+    network = cuboidlib.abstract(path, model="table")
+    refined = cuboidlib.abstract(path, model="table", refine=60)
+    assert refined.method["refine"]["steps"] == 60 and "refine" not in network.method
+    assert set(np.nonzero(refined.cuboids.exists[0].numpy())[0]) <= set(np.nonzero(network.cuboids.exists[0].numpy())[0])
+    assert np.mean(refined.labels == network.labels) > 0.8, "the segmentation stays the network's, mostly"
+    assert refined.chamfer < network.chamfer
+    with pytest.raises(ValueError, match="refine starts the fit from a network"):
+        cuboidlib.abstract(path, model=None, refine=10)
+    with pytest.raises(ValueError, match="refine must be a non-negative number of steps"):
+        cuboidlib.abstract(path, model="table", refine=-1)

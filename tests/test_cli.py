@@ -8,6 +8,7 @@ The network is a tiny randomly initialised one: these tests check the plumbing, 
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
@@ -223,6 +224,36 @@ def test_fit_a_mesh_quietly_in_the_normalised_frame(tmp_path, capsys):
         "cuboidlib-manifest.json", "table_0.glb", "table_0.json", "table_0_segmentation.ply"]
 
 
+def test_many_shapes_in_one_run_with_a_summary_and_failures_skipped(tmp_path, checkpoint, capsys):
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    for name in ("chair_0.ply", "chair_1.ply"):
+        (inputs / name).write_bytes((SAMPLES / "points" / name).read_bytes())
+    (inputs / "broken.ply").write_text("not a ply file")
+    (inputs / "notes.txt.bak").write_text("ignored: not a shape file")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "chair_0.ply").write_bytes((SAMPLES / "points" / "chair_0.ply").read_bytes())  # same name, other folder
+    code = main(["abstract", str(inputs), str(other / "*.ply"), "--model", str(checkpoint), "--out",
+                 str(tmp_path / "out"), "--points", "128"])
+    err = capsys.readouterr().err
+    assert code == 1, "some shape failed"
+    assert "skipped" in err and "broken.ply" in err and "Traceback" not in err
+    with open(tmp_path / "out" / "summary.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(Path(r["shape"]).name, r["status"]) for r in rows] == [
+        ("broken.ply", "failed"), ("chair_0.ply", "ok"), ("chair_1.ply", "ok"), ("chair_0.ply", "ok")]
+    assert [r["result"] for r in rows[1:]] == ["chair_0.json", "chair_1.json", "chair_0_2.json"]
+    assert "not a PLY file" in rows[0]["error"] and all(0 <= int(r["cuboids_used"]) <= 6 for r in rows[1:])
+    manifest = json.loads((tmp_path / "out" / "cuboidlib-manifest.json").read_text())
+    assert manifest["complete"] and "summary.csv" in manifest["files"] and "chair_0_2.json" in manifest["files"]
+    assert main(["fit", str(inputs / "chair_*.ply"), "--out", str(tmp_path / "fits"), "--steps", "3", "--quiet"]) == 0
+    assert sorted(p.name for p in (tmp_path / "fits").glob("*.json") if p.name != "cuboidlib-manifest.json") == [
+        "chair_0.json", "chair_1.json"]
+    assert main(["fit", str(tmp_path / "nothing_*.ply"), "--out", str(tmp_path / "none")]) == 2
+    assert_one_line_error(capsys.readouterr().err, "no mesh or point cloud file matches this pattern")
+
+
 def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monkeypatch, capsys):
     committed = tmp_path / "committed"
     committed.mkdir()
@@ -234,6 +265,11 @@ def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monk
     _, meta = read_cuboids_json(tmp_path / "out" / "chair_1.json")
     assert meta["method"]["checkpoint"] == str(committed / "chair.pt") and meta["method"]["centers"] == "allocation"
     assert meta["method"]["points"] == 128
+    code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "chair", "--out",
+                 str(tmp_path / "refined"), "--points", "128", "--refine", "20"])
+    assert code == 0, capsys.readouterr().err
+    _, meta = read_cuboids_json(tmp_path / "refined" / "chair_1.json")
+    assert meta["method"]["refine"]["steps"] == 20
     code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "table", "--out",
                  str(tmp_path / "out2")])
     assert code == 2
@@ -248,6 +284,8 @@ def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monk
         (["fit", "SHAPE"], "the following arguments are required: --out"),
         (["abstract", "SHAPE", "--model", "CKPT", "--out", "OUT", "--threshold", "1.5"],
          "argument --threshold: expected a number in [0, 1)"),
+        (["abstract", "SHAPE", "--model", "CKPT", "--out", "OUT", "--refine", "-3"],
+         "argument --refine: expected a non-negative integer"),
         (["generate", "--model", "CKPT", "--out", "OUT", "--count", "-1"], "argument --count"),
         (["interpolate", "SHAPE", "--model", "CKPT", "--out", "OUT"], "required: SHAPE_B"),
         (["view"], "required: RESULT"),
@@ -272,11 +310,13 @@ def test_bad_inputs_are_one_line_errors(tmp_path, checkpoint, capsys):
     (broken / "cuboids.json").write_text('{"format": "cuboidlib-cuboids", "version": 1}')
     not_ply = tmp_path / "not_a.ply"
     not_ply.write_text("hello")
+    empty = tmp_path / "empty"
+    (empty / "sub").mkdir(parents=True)  # folders are read one level deep: no shape file here
     cases = [
         (["fit", sample, "--out", str(tmp_path / "file")], "exists and is not a folder"),
         (["fit", str(not_ply), "--out", str(tmp_path / "o")], "not_a.ply: not a PLY file"),
         (["fit", sample, "--out", str(tmp_path / "o"), "--part-names", "back,seat"], "only 2 names"),
-        (["fit", str(tmp_path), "--out", str(tmp_path / "o")], "is a folder"),
+        (["fit", str(empty), "--out", str(tmp_path / "o")], "a folder without mesh or point cloud files"),
         (["abstract", sample, "--model", str(junk), "--out", str(tmp_path / "o")], "not a readable cuboidlib checkpoint"),
         (["interpolate", sample, sample, "--model", str(checkpoint), "--out", str(tmp_path / "o"),
           "--steps", "1"], "--steps must be at least 2"),

@@ -270,6 +270,7 @@ def test_tables_1_2_compare_three_methods_on_four_categories():
     train = [r for r in runs if r.task == "train"]
     fits = [r for r in runs if r.task == "fit"]
     assert len(train) == len(fits) == 4 and all(r.options["baseline"] for r in train)
+    assert all(r.options["refine"] == 100 for r in train), "the network is also scored after 100 refinement steps"
     assert {r.config.category: r.options["fit"]["num_cuboids"] for r in fits} == runner.COURSE_NUM_CUBOIDS
     _, without = _runs(table12, "--without-fitting")
     assert [r.task for r in without] == ["train"] * 4, "--without-fitting leaves out the per-shape fits"
@@ -337,8 +338,11 @@ def test_runner_end_to_end_writes_results_with_provenance(tmp_path, capsys):
     assert [r.task for r in runs] == ["score", "fit"] and runs[0].config.n_shapes == 12
     record = runner.execute(runs[0], tmp_path / "score")
     assert record["status"] == "ok", record.get("error")
-    assert [r["method"] for r in record["results"]] == ["network", "k-means boxes"]
-    boxes = record["results"][1]["metrics"]["boxes"]
+    assert [r["method"] for r in record["results"]] == ["network", "network + refinement", "k-means boxes"]
+    refined = record["results"][1]
+    assert refined["scores"]["refine_steps"] == 5 and 0 <= refined["scores"]["segmentation_kept"] <= 1
+    assert refined["metrics"]["n_ac"] <= record["results"][0]["metrics"]["n_ac"], "refinement adds no cuboid"
+    boxes = record["results"][2]["metrics"]["boxes"]
     assert boxes == max(1, round(record["results"][0]["metrics"]["n_ac"]))
 
 

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 import torch
 
+from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.distance import point_to_cuboid_distance
 from cuboidlib.losses import compactness_loss, reconstruction_loss
+from cuboidlib.metrics import cuboid_chamfer_distance
 from cuboidlib.normalization import normalize
 from cuboidlib.fitting import FitConfig, FitResult, _optimise, fit_cuboids, initial_cuboids
 from cuboidlib.geometry import Cuboids, sample_cuboid_surfaces, world_to_local
@@ -336,3 +338,59 @@ def test_numpy_and_torch_inputs_agree():
     a = fit_cuboids(np.asarray(points), np.asarray(normals), config)
     b = fit_cuboids(points, normals, config)
     assert torch.equal(a.W, b.W)
+
+
+# ----------------------------------------------------------------------------------------------
+# Refinement: the fit started from given cuboids and allocation
+# ----------------------------------------------------------------------------------------------
+
+
+def _rough_start(points: torch.Tensor, labels: torch.Tensor) -> AbstractionBatch:
+    """A deliberately loose start for two boxes in slots 0 and 2 of M = 4 (slots 1 and 3 absent)."""
+    centers = torch.tensor([[[-0.45, 0.05, 0.0], [0.0, 0.0, 0.0], [0.55, -0.05, 0.0], [0.0, 0.5, 0.0]]])
+    half = torch.tensor([[[0.3, 0.35, 0.3], [0.1, 0.1, 0.1], [0.3, 0.2, 0.2], [0.1, 0.1, 0.1]]])
+    quats = torch.tensor([[IDENTITY] * 4])
+    exists = torch.tensor([[True, False, True, False]])
+    return AbstractionBatch(Cuboids(centers, quats, half, exists), labels=torch.where(labels == 0, 0, 2))
+
+
+def test_refinement_keeps_the_start_slots_and_tightens_the_cuboids(two_boxes):
+    points, normals, labels = two_boxes
+    start = _rough_start(points, labels)
+    config = FitConfig(num_cuboids=9, steps=150, lr=0.003, normalize=False)  # num_cuboids follows the start: M = 4
+    refined = fit_cuboids(points, normals, config, start=start)
+    assert refined.cuboids.num_cuboids == 4 and refined.config.num_cuboids == 4
+    assert refined.exists.tolist() == [[True, False, True, False]], "absent slots stay absent"
+    assert torch.equal(refined.labels, start.labels), "well separated boxes keep their segmentation"
+    torch.testing.assert_close(refined.initial.centers, start.cuboids.centers)
+    chamfer = lambda c: float(cuboid_chamfer_distance(points, c.centers, c.quaternions, c.half_sizes, c.exists,  # noqa: E731
+                                                      generator=torch.Generator().manual_seed(0)))
+    assert chamfer(refined.cuboids) < 0.3 * chamfer(start.cuboids)
+    # the boxes are found again: centres within 0.03 of the true ones
+    torch.testing.assert_close(refined.cuboids.centers[0, [0, 2]], torch.tensor([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0]]),
+                               atol=0.03, rtol=0)
+
+
+def test_refinement_from_labels_in_other_units_works_in_the_points_coordinates(two_boxes):
+    points, normals, labels = two_boxes
+    start = _rough_start(points, labels)
+    scaled = AbstractionBatch(Cuboids(100 * start.cuboids.centers + 7, start.cuboids.quaternions,
+                                      100 * start.cuboids.half_sizes, start.cuboids.exists), labels=start.labels)
+    refined = fit_cuboids(100 * points + 7, normals, FitConfig(steps=150, lr=0.003), start=scaled)  # normalises
+    reference = fit_cuboids(points, normals, FitConfig(steps=150, lr=0.003), start=start)
+    torch.testing.assert_close((refined.cuboids.centers - 7) / 100, reference.cuboids.centers, atol=1e-3, rtol=0)
+
+
+def test_refinement_refuses_a_start_that_does_not_fit_the_points(two_boxes):
+    points, normals, labels = two_boxes
+    start = _rough_start(points, labels)
+    with pytest.raises(ValueError, match="start holds 1 shape"):
+        fit_cuboids(points.repeat(2, 1, 1), normals.repeat(2, 1, 1), FitConfig(steps=1), start=start)
+    with pytest.raises(ValueError, match="allocation covers"):
+        fit_cuboids(points[:, :100], normals[:, :100], FitConfig(steps=1), start=start)
+    with pytest.raises(ValueError, match="needs an allocation"):
+        fit_cuboids(points, normals, FitConfig(steps=1), start=AbstractionBatch(start.cuboids))
+    with pytest.raises(ValueError, match="restarts must be 1"):
+        fit_cuboids(points, normals, FitConfig(steps=1, restarts=2), start=start)
+    with pytest.raises(TypeError, match="AbstractionBatch"):
+        fit_cuboids(points, normals, FitConfig(steps=1), start=start.cuboids)
