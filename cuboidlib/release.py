@@ -43,7 +43,7 @@ from .dataset import load_splits
 from .train import TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
-           "publish_run", "read_card", "cards_markdown"]
+           "publish_run", "read_card", "cards_markdown", "training_curve", "curve_marks"]
 
 CARD_FORMAT = "cuboidlib-checkpoint-card"
 
@@ -92,13 +92,36 @@ def _training_summary(run_dir: Path, selected_step: int | None) -> dict:
     if last is None:
         raise ValueError(f"{run_dir / 'log.csv'}: no training step logged")
     seconds = round(float(last["seconds"]), 1)
+    return {"steps": int(last["step"]), "selected_step": selected_step, "selection": "lowest validation loss",
+            "seconds": seconds, "validation": curve, "at_minutes": curve_marks(curve, seconds)}
+
+
+def curve_marks(curve: list[dict], seconds: float) -> dict:
+    """The last validation at or before each of :data:`CURVE_MARKS` minutes that a run of ``seconds`` reached."""
     marks = {}
     for minutes in CURVE_MARKS:
         before = [e for e in curve if e["seconds"] <= 60 * minutes]
         if before and seconds >= 60 * minutes - 60:  # the run lasted (about) this long
             marks[str(minutes)] = before[-1]
-    return {"steps": int(last["step"]), "selected_step": selected_step, "selection": "lowest validation loss",
-            "seconds": seconds, "validation": curve, "at_minutes": marks}
+    return marks
+
+
+def training_curve(card: dict) -> tuple[list[dict], float, list[float]]:
+    """The validation curve of all the stages a card records (``initialised_from``, then its own run).
+
+    Returns (curve, total seconds, the seconds at which each later stage started); every entry of the
+    curve is a validation of :func:`_training_summary` with ``seconds`` counted from the start of the
+    first stage and ``stage`` (0, 1, ...).
+    """
+    earlier = card.get("initialised_from", {})
+    stages = ([earlier["training"]] if "training" in earlier else []) + [card["training"]]
+    curve, offset, starts = [], 0.0, []
+    for k, stage in enumerate(stages):
+        if k:
+            starts.append(offset)
+        curve += [{**e, "seconds": round(e["seconds"] + offset, 1), "stage": k} for e in stage["validation"]]
+        offset += stage["seconds"]
+    return curve, round(offset, 1), starts
 
 
 @torch.no_grad()
@@ -247,7 +270,8 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
 def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     """A Markdown table of released checkpoints, one row per card, for README files.
 
-    Columns: category, M, training (steps, minutes), the network's test Chamfer distance (x 1000,
+    Columns: category, M, training (steps, minutes; "a + b" for a network trained in two stages), the
+    network's test Chamfer distance (x 1000,
     convention of the first one in the card), normal consistency, mIoU (%), N_AC, and the same for the
     baseline at the same number of boxes.
     """
@@ -258,10 +282,13 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
         card = read_card(checkpoint)
         network, baseline = card["test"]["results"]
         cd = [1000 * r["chamfer"][0]["value"] for r in (network, baseline)]
-        training = card["training"]
+        stages = [card["initialised_from"]["training"]] if "training" in card.get("initialised_from", {}) else []
+        stages.append(card["training"])
+        steps = " + ".join(str(t["steps"]) for t in stages)
+        minutes = " + ".join(f"{t['seconds'] / 60:.1f}" for t in stages)
         rows.append(
             f"| `{card['checkpoint']}` | {card['config']['model']['num_cuboids']} "
-            f"| {training['steps']} steps, {training['seconds'] / 60:.1f} min | {card['test']['n_shapes']} "
+            f"| {steps} steps, {minutes} min | {card['test']['n_shapes']} "
             f"| {cd[0]:.2f} / {cd[1]:.2f} | {network['normal_consistency']:.3f} / {baseline['normal_consistency']:.3f} "
             f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} |"
         )

@@ -4,6 +4,7 @@ Reads the validation curve that ``cuboidlib train --release`` stores in each che
 (``data_samples/checkpoints/<category>.json``, ``training.validation``: the validation split scored every
 ``validate_every`` steps, mIoU by label transfer within that split) and draws, for the four categories,
 mIoU and the number of existing cuboids against minutes of training, with the 15 / 30 / 60 minute marks.
+A network trained in two stages (``init_from``) shows both, the second from the dashed line on.
 No training happens here; the cards are the record.
 
 Example::
@@ -24,7 +25,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from cuboidlib.release import CURVE_MARKS, read_card  # noqa: E402
+from cuboidlib.release import CURVE_MARKS, curve_marks, read_card, training_curve  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CATEGORIES = ("chair", "table", "airplane", "animal")
@@ -33,12 +34,15 @@ CATEGORIES = ("chair", "table", "airplane", "animal")
 def draw(checkpoints: Path) -> plt.Figure:
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     for i, category in enumerate(CATEGORIES):
-        card = read_card(checkpoints / f"{category}.pt")
-        curve = [e for e in card["training"]["validation"] if "miou" in e]
+        curve, _, starts = training_curve(read_card(checkpoints / f"{category}.pt"))
+        curve = [e for e in curve if "miou" in e]
         minutes = [e["seconds"] / 60 for e in curve]
         color = f"C{i}"
         axes[0].plot(minutes, [100 * e["miou"] for e in curve], "-", color=color, label=category)
         axes[1].plot(minutes, [e["n_ac"] for e in curve], "-", color=color, label=category)
+        for ax in axes:  # where the second stage (falling learning rate) starts
+            for start in starts:
+                ax.axvline(start / 60, color=color, lw=0.8, ls="--")
     for ax, label in zip(axes, ("validation mIoU (%)", "cuboids per shape (N_AC)")):
         for mark in CURVE_MARKS:
             ax.axvline(mark, color="grey", lw=0.6, ls=":")
@@ -61,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         fig.savefig(tmp.name, dpi=90)
     os.replace(tmp.name, args.out)  # atomic: a reader never sees half a file
     for category in CATEGORIES:
-        marks = read_card(args.checkpoints / f"{category}.pt")["training"]["at_minutes"]
+        marks = curve_marks(*training_curve(read_card(args.checkpoints / f"{category}.pt"))[:2])
         text = ", ".join(f"{m} min: mIoU {100 * e['miou']:.1f} %, N_AC {e['n_ac']:.1f}" for m, e in marks.items())
         print(f"{category:9s} {text}")
     print(f"wrote {args.out}")

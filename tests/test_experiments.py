@@ -417,7 +417,7 @@ def test_every_script_has_help_naming_its_table():
 def test_training_curves_are_drawn_from_the_cards(tmp_path, capsys):
     import training_curves
 
-    from cuboidlib.release import read_card
+    from cuboidlib.release import curve_marks, read_card, training_curve
 
     out = tmp_path / "curves.png"
     assert training_curves.main(["--out", str(out)]) == 0
@@ -425,7 +425,10 @@ def test_training_curves_are_drawn_from_the_cards(tmp_path, capsys):
     printed = capsys.readouterr().out.splitlines()
     for category in training_curves.CATEGORIES:
         (line,) = [row for row in printed if row.startswith(category)]
-        marks = read_card(ROOT / "data_samples" / "checkpoints" / f"{category}.pt")["training"]["at_minutes"]
+        curve, seconds, starts = training_curve(read_card(ROOT / "data_samples" / "checkpoints" / f"{category}.pt"))
+        assert [e["seconds"] for e in curve] == sorted(e["seconds"] for e in curve), "stages one after the other"
+        assert seconds <= 60 * 60 and len(starts) == 1, "two stages, at most 60 minutes together"
+        marks = curve_marks(curve, seconds)
         assert marks, f"{category}: the card reaches no 15-minute mark"
         for minutes, entry in marks.items():
             assert f"{minutes} min: mIoU {100 * entry['miou']:.1f} %" in line

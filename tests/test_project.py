@@ -154,11 +154,17 @@ def test_committed_checkpoint_comes_with_its_card_and_config(category):
     config = TrainConfig.from_dict(card["config"])
     assert card["config"] == state["config"] and config.category == category
     assert config.model_config.num_cuboids == PAPER_M[category]
-    expected = rf"cuboidlib train --config data_samples/checkpoints/configs/{category}\.json --out \S+ " \
+    # two stages: the recipe (configs/<category>.json), then the fine-tuning of configs/finetune/<category>.json,
+    # which starts from the first stage's best weights and is the command that released the network
+    expected = rf"cuboidlib train --config data_samples/checkpoints/configs/finetune/{category}\.json --out \S+ " \
                rf"--release data_samples/checkpoints/{category}\.pt"
     assert re.fullmatch(expected, card["command"]), card["command"]
-    assert TrainConfig.load_json(CHECKPOINTS / "configs" / f"{category}.json") == config, "trained by its config file"
-    assert card["training"]["seconds"] <= 60 * 60, "each checkpoint trains in at most 60 minutes"
+    assert TrainConfig.load_json(CHECKPOINTS / "configs" / "finetune" / f"{category}.json") == config
+    first = card["initialised_from"]
+    assert config.init_from == first["checkpoint"] == f"runs/{category}/best.pt"
+    assert TrainConfig.load_json(CHECKPOINTS / "configs" / f"{category}.json") == TrainConfig.from_dict(first["config"])
+    seconds = first["training"]["seconds"] + card["training"]["seconds"]
+    assert seconds <= 60 * 60, "each checkpoint trains in at most 60 minutes, both stages together"
     assert card["test"]["n_shapes"] >= 200, "scored on a test split of at least 200 shapes"
     curve = card["training"]["validation"]
     assert curve and all("miou" in e and "n_ac" in e for e in curve), "the card holds the validation curve"
