@@ -257,8 +257,11 @@ class Abstraction:
         points = np.zeros((0, 3)) if self.points is None else self._points_in(self.points, coordinates)
         title = kwargs.pop("title", f"{self.source or 'shape'}: {self.num_existing} of {self.cuboids.num_cuboids} "
                            "cuboids")
+        names = None
+        if self.part_labels is not None and self.part_names:
+            names = [self.part_names[k] if 0 <= k < len(self.part_names) else None for k in self.part_labels]
         return plot_cuboids_plotly(points, self.labels, self.cuboids_in(coordinates), max_points=max_points,
-                                   title=title, **kwargs)
+                                   title=title, names=names, **kwargs)
 
 
 def result_files(stem: str, formats=("glb",), points: bool = True) -> dict[str, str]:

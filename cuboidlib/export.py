@@ -646,7 +646,15 @@ def _result_jsons(path: Path) -> list[Path]:
     return found
 
 
-def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray | None]:
+def cuboid_part_names(meta: dict) -> list[str | None] | None:
+    """The part name of every cuboid index of a result's JSON metadata (None where unknown), or None."""
+    names, labels = meta.get("part_names"), meta.get("part_labels")
+    if not names or labels is None:
+        return None
+    return [names[k] if 0 <= k < len(names) else None for k in labels]
+
+
+def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray | None, list | None]:
     from .io import read_point_cloud
 
     cuboids, meta = read_cuboids_json(json_path)
@@ -655,7 +663,7 @@ def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray 
         cloud = read_point_cloud(json_path.parent / meta["points_file"])
         points, labels = cloud.points, cloud.labels
     title = f"{meta.get('source') or json_path.stem}: {meta['num_existing']} of {meta['num_cuboids']} cuboids"
-    return title, cuboids, points, labels
+    return title, cuboids, points, labels, cuboid_part_names(meta)
 
 
 def write_view_html(
@@ -688,11 +696,11 @@ def write_view_html(
     for k, (chunk, page) in enumerate(zip(chunks, pages)):
         items = [_result_item(p) for p in chunk]
         if len(items) == 1:
-            title, cuboids, points, labels = items[0]
+            title, cuboids, points, labels, names = items[0]
             fig = plot_cuboids_plotly(points, labels, cuboids, max_points=max_points, title=title, width=900,
-                                      height=760)
+                                      height=760, names=names)
         else:
-            fig = plot_cuboids_plotly_grid([(p, lab, c) for _, c, p, lab in items], titles=[t for t, *_ in items],
+            fig = plot_cuboids_plotly_grid([(p, lab, c) for _, c, p, lab, _ in items], titles=[t for t, *_ in items],
                                            cols=cols, max_points=max(1, max_points // len(items)))
         html = fig.to_html(include_plotlyjs=True, full_html=True)
         if len(pages) > 1:

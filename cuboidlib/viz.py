@@ -141,8 +141,13 @@ def _groups(labels: np.ndarray) -> list[int]:
 # ----------------------------------------------------------------------------------------------
 
 
-def _plotly_traces(points, labels, cuboids, exists, index, opacity, max_points, point_size, decimals, showlegend):
+def _plotly_traces(points, labels, cuboids, exists, index, opacity, max_points, point_size, decimals, showlegend,
+                   names=None):
     import plotly.graph_objects as go
+
+    def name(m: int) -> str:  # "cuboid 3", or "cuboid 3: leg" when the cuboid's part is known
+        part = names[m] if names is not None and 0 <= m < len(names) else None
+        return f"cuboid {m}: {part}" if part else f"cuboid {m}"
 
     if not 0 <= opacity <= 1:
         raise ValueError(f"opacity must lie in [0, 1], got {opacity!r}")
@@ -155,7 +160,7 @@ def _plotly_traces(points, labels, cuboids, exists, index, opacity, max_points, 
         color = UNLABELLED if m < 0 else cuboid_color(m)
         traces.append(go.Scatter3d(
             x=rnd(pts[sel, 0]), y=rnd(pts[sel, 1]), z=rnd(pts[sel, 2]), mode="markers",
-            marker=dict(size=point_size, color=color), name="points" if m < 0 else f"cuboid {m}",
+            marker=dict(size=point_size, color=color), name="points" if m < 0 else name(m),
             legendgroup=f"cuboid {m}", showlegend=showlegend,
         ))
     tri = CUBOID_TRIANGLES.numpy()
@@ -163,7 +168,7 @@ def _plotly_traces(points, labels, cuboids, exists, index, opacity, max_points, 
         color, v = cuboid_color(int(m)), rnd(corners[m])
         traces.append(go.Mesh3d(
             x=v[:, 0], y=v[:, 1], z=v[:, 2], i=tri[:, 0], j=tri[:, 1], k=tri[:, 2], color=color,
-            opacity=opacity, flatshading=True, name=f"cuboid {m}", legendgroup=f"cuboid {m}",
+            opacity=opacity, flatshading=True, name=name(int(m)), legendgroup=f"cuboid {m}",
             showlegend=False, hoverinfo="name",
         ))
         edge = np.full((3 * len(_EDGES), 3), np.nan, dtype=np.float32)  # segments separated by gaps
@@ -171,7 +176,7 @@ def _plotly_traces(points, labels, cuboids, exists, index, opacity, max_points, 
         edge[1::3] = v[[b for _, b in _EDGES]]
         traces.append(go.Scatter3d(
             x=edge[:, 0], y=edge[:, 1], z=edge[:, 2], mode="lines", line=dict(color=color, width=3),
-            name=f"cuboid {m}", legendgroup=f"cuboid {m}", showlegend=False, hoverinfo="skip",
+            name=name(int(m)), legendgroup=f"cuboid {m}", showlegend=False, hoverinfo="skip",
         ))
     return traces
 
@@ -198,19 +203,21 @@ def plot_cuboids_plotly(
     title: str | None = None,
     width: int = 520,
     height: int = 460,
+    names=None,
 ):
     """Interactive 3D figure of one shape: points coloured by cuboid and translucent cuboids.
 
     points (N, 3), labels (N,) cuboid index per point (or None), cuboids and exists as in the
     module docstring. Every existing cuboid m is a ``Mesh3d`` (12 triangles, ``opacity``) plus its
     12 edges, in ``cuboid_color(m)``; each label group is one ``Scatter3d`` of markers named
-    "cuboid m" (one legend entry per group toggles its points and its cuboid together). Equal
-    aspect ratio, +y up. Returns a ``plotly.graph_objects.Figure``.
+    "cuboid m" (one legend entry per group toggles its points and its cuboid together), or "cuboid m:
+    NAME" when ``names`` (a sequence with the part name of every cuboid index, None where unknown)
+    says which part cuboid m is. Equal aspect ratio, +y up. Returns a ``plotly.graph_objects.Figure``.
     """
     import plotly.graph_objects as go
 
     traces = _plotly_traces(points, labels, cuboids, exists, index, opacity, max_points, point_size, decimals,
-                            showlegend=True)
+                            showlegend=True, names=names)
     fig = go.Figure(traces)
     fig.update_layout(
         scene=_scene_layout(), width=width, height=height, margin=dict(l=0, r=0, t=30 if title else 0, b=0),

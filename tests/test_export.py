@@ -318,6 +318,19 @@ def test_view_html_is_self_contained_and_shows_every_cuboid(tmp_path, result):
     assert "thing.obj: 3 of 4 cuboids" in figure
 
 
+def test_view_legend_names_the_part_of_each_cuboid_when_known(tmp_path, result):
+    import dataclasses
+
+    named = dataclasses.replace(result, part_labels=np.array([1, 0, -1, -1]), part_names=("seat", "leg"))
+    named.save(tmp_path / "named", "thing")
+    (page,) = write_view_html(tmp_path / "named")
+    figure = page.read_text()
+    figure = figure[figure.index("Plotly.newPlot("):]
+    assert '"cuboid 0: leg"' in figure and '"cuboid 1: seat"' in figure
+    assert '"cuboid 3"' in figure, "a cuboid without a known part keeps its plain name"
+    assert "cuboid 0: leg" in str(named.plot().to_dict()), "Abstraction.plot names the parts too"
+
+
 def test_view_of_a_folder_of_results_draws_a_grid(tmp_path, cuboids):
     for k in range(3):
         Abstraction(cuboids, method={"name": "generate"}).save(tmp_path, f"generated_{k:02d}", normalized=True)
