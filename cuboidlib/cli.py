@@ -95,7 +95,9 @@ def _add_train_command(sub) -> None:
     p.add_argument("--category", help="procedural category: chair, table, airplane or animal")
     p.add_argument("--shapes", type=int, dest="n_shapes", help="shapes in the procedural collection")
     p.add_argument("--points", type=int, dest="n_points", help="points per shape (paper: 4096)")
-    p.add_argument("--data-dir", help="folder of point-cloud / mesh files instead of a procedural collection")
+    p.add_argument("--data-dir", help="train on this folder instead of a procedural collection: a ShapeNet-part root "
+                   "(with --category chair, table or airplane), the authors' data layout (<category>_train.npy ...) or "
+                   "any folder of point-cloud / mesh files")
     p.add_argument("--data-seed", type=int, help="seed of the collection")
     p.add_argument("--split", type=float, nargs=3, dest="split_fractions", metavar=("TRAIN", "VAL", "TEST"),
                    help="split fractions (default 0.7 0.1 0.2)")
@@ -233,7 +235,12 @@ def _add_evaluate_command(sub) -> None:
     )
     p.add_argument("checkpoint", help="a checkpoint file, a 'cuboidlib train' run folder (its best.pt) or the "
                    "name of a committed checkpoint (e.g. chair)")
-    p.add_argument("--split", choices=("train", "val", "test"), default="test", help="split to score (default: test)")
+    p.add_argument("--split", choices=("train", "val", "test", "all"), default="test",
+                   help="split to score (default: test; all: every shape of the data)")
+    p.add_argument("--data-dir", metavar="DIR",
+                   help="score on this data instead of the checkpoint's own: a ShapeNet-part root, the authors' data "
+                   "layout or a folder of mesh / point cloud files (labels score the mIoU when the files have them)")
+    p.add_argument("--category", help="the category to read from --data-dir (default: the checkpoint's)")
     p.add_argument("--baseline", action="store_true", help="also score the k-means + oriented-box baseline")
     p.add_argument("--baseline-boxes", type=int,
                    help="boxes per shape for the baseline (default: the network's N_AC, rounded)")
@@ -260,12 +267,15 @@ def _cmd_evaluate(args) -> int:
     from .evaluation import evaluate_baseline, evaluate_model, format_table
     from .metrics import ChamferConvention
     from .config import resolve_device
-    from .dataset import load_splits
+    from .dataset import load_shapes, load_splits
     from .train import TrainConfig
 
     model, state, _ = load_trained_model(args.checkpoint, resolve_device(args.device))
     config = TrainConfig.from_dict(state["config"])
-    shapes = load_splits(config)[args.split]
+    if args.data_dir is not None:
+        _check_input_folder(args.data_dir)
+        config = config.replace(data_dir=args.data_dir, category=args.category or config.category)
+    shapes = load_shapes(config) if args.split == "all" else load_splits(config)[args.split]
     conventions = [ChamferConvention(norm, args.chamfer_directions, args.chamfer_scale, args.samples)
                    for norm in (args.chamfer_norm or ["squared_l2"])]
     options = dict(label_transfer_fraction=args.label_fraction, conventions=conventions, seed=args.seed)
@@ -277,7 +287,8 @@ def _cmd_evaluate(args) -> int:
     if args.baseline:
         boxes = args.baseline_boxes or max(1, round(results[0]["n_ac"]))
         results.append(evaluate_baseline(shapes, boxes, **options))
-    title = (f"{args.checkpoint}: {config.category}, {args.split} split ({len(shapes)} shapes, "
+    data = f", {config.data_dir}" if args.data_dir else ""
+    title = (f"{args.checkpoint}: {config.category}{data}, {args.split} split ({len(shapes)} shapes, "
              f"{config.n_points} points each)")
     print(format_table(results, title))
     if args.json:
@@ -412,6 +423,13 @@ def _record(args, files, complete: bool = True) -> None:
 def _bars(args) -> bool:
     """Progress bars only for a person watching: not with --quiet, not into a redirected log."""
     return not args.quiet and sys.stderr.isatty()
+
+
+def _check_input_folder(path: str) -> None:
+    from pathlib import Path
+
+    if not Path(path).is_dir():
+        raise UserError(f"{path}: no such data folder")
 
 
 def _check_input(path: str) -> None:

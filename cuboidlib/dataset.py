@@ -56,6 +56,7 @@ if TYPE_CHECKING:
 __all__ = [
     "PAPER_ROTATIONS_DEG", "PointCloudDataset", "rotate_about_y", "ShapeSet", "split_indices", "load_shapes",
     "load_splits",
+    "data_layout",
     "add_noise",
     "noisy_splits",
 ]
@@ -275,8 +276,54 @@ def _data_files(folder: Path) -> list[Path]:
     return files
 
 
+def data_layout(folder: str | os.PathLike, category: str) -> str:
+    """Which layout a data folder has: "shapenet-part" (``synsetoffset2category.txt`` at its root),
+    "authors" (``<category>_train.npy`` or ``.txt`` at its root) or "files" (any other folder: every
+    mesh and point cloud file below it)."""
+    folder = Path(folder)
+    if (folder / "synsetoffset2category.txt").is_file():
+        return "shapenet-part"
+    if _authors_splits(folder, category):
+        return "authors"
+    return "files"
+
+
+def _authors_splits(folder: Path, category: str) -> list[str]:
+    """The splits ("train", "test") whose file list the authors' layout holds in ``folder``."""
+    return [s for s in ("train", "test") if any((folder / f"{category}_{s}{x}").is_file() for x in (".npy", ".txt"))]
+
+
+def _folder_dataset(folder: Path, category: str, n_points: int, seed: int) -> tuple[PointCloudDataset, tuple | None]:
+    """The dataset of a data folder in any of the layouts of :func:`data_layout`, and its part names.
+
+    The published splits of a data set are joined (ShapeNet-part: train, val and test; the authors'
+    data: train and test), so that :func:`split_indices` splits them as it splits everything else.
+    """
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such data folder")
+    layout = data_layout(folder, category)
+    if layout == "shapenet-part":
+        files = [f for split in ("train", "val", "test") for f in shapenet_part_files(folder, category, split)]
+        if not files:
+            raise ValueError(f"{folder}: the ShapeNet-part lists hold no {category!r} shape")
+        dataset = PointCloudDataset(files, n_points=n_points, seed=seed,
+                                    label_map=lambda raw: shapenet_part_labels(raw, category))
+        return dataset, PART_NAMES[category]
+    if layout == "authors":
+        files = [f for split in _authors_splits(folder, category) for f in authors_layout_files(folder, category, split)]
+        if not files:
+            raise ValueError(f"{folder}: the {category} file lists are empty")
+        return PointCloudDataset(files, n_points=n_points, seed=seed), None
+    return PointCloudDataset(_data_files(folder), n_points=n_points, seed=seed), None
+
+
 def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
-    """All shapes of the configured data source as one :class:`ShapeSet` (before splitting)."""
+    """All shapes of the configured data source as one :class:`ShapeSet` (before splitting).
+
+    The source is the procedural collection of ``config.category``, or the folder ``config.data_dir``:
+    a ShapeNet-part root, the authors' data layout or any folder of mesh / point cloud files
+    (:func:`data_layout`; for the first two, ``config.category`` picks the category).
+    """
     from .shapes import make_collection
 
     if config.data_dir is None:
@@ -285,8 +332,8 @@ def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
         dataset = PointCloudDataset(collection)
         part_names = PART_NAMES[config.category]
     else:
-        dataset = PointCloudDataset(_data_files(Path(config.data_dir)), n_points=config.n_points, seed=config.data_seed)
-        part_names = None
+        dataset, part_names = _folder_dataset(Path(config.data_dir), config.category, config.n_points,
+                                              config.data_seed)
     items = [dataset[i] for i in range(len(dataset))]
     sizes = {int(item["points"].shape[0]) for item in items}
     if len(sizes) > 1:

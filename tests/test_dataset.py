@@ -1,3 +1,4 @@
+import json
 import math
 
 import numpy as np
@@ -99,6 +100,45 @@ def test_shapenet_part_and_authors_layouts(tmp_path):
     (authors / "table_test.txt").write_text("x.npy\n")
     ds = PointCloudDataset.from_authors_layout(authors, "table", "test", n_points=100)
     assert len(ds) == 1 and ds[0]["points"].shape == (100, 3) and "labels" not in ds[0]
+
+
+def test_training_reads_a_shapenet_part_root_and_the_authors_layout(tmp_path):
+    from cuboidlib.dataset import data_layout, load_splits
+    from cuboidlib.train import TrainConfig
+
+    root = tmp_path / "shapenet"
+    (root / "train_test_split").mkdir(parents=True)
+    (root / "03001627").mkdir()
+    (root / "04379243").mkdir()
+    (root / "synsetoffset2category.txt").write_text("Chair\t03001627\nTable\t04379243\n")
+    lists = {"train": [], "val": [], "test": []}
+    for k in range(10):  # chairs spread over the three published splits, and a table that must be left out
+        s = make_shape("chair", k, n_points=200)
+        io.write_point_cloud(root / "03001627" / f"c{k}.txt", s.points, s.normals, s.labels + 12)  # global ids 12-15
+        lists[("train", "train", "train", "train", "train", "train", "val", "val", "test", "test")[k]].append(
+            f"shape_data/03001627/c{k}")
+    t = make_shape("table", 0, n_points=200)
+    io.write_point_cloud(root / "04379243" / "t0.txt", t.points, t.normals, np.full(200, 47))
+    lists["train"].append("shape_data/04379243/t0")
+    for split, entries in lists.items():
+        (root / "train_test_split" / f"shuffled_{split}_file_list.json").write_text(json.dumps(entries))
+    assert data_layout(root, "chair") == "shapenet-part" and data_layout(tmp_path, "chair") == "files"
+    config = TrainConfig(category="chair", data_dir=str(root), n_points=128)
+    splits = load_splits(config)
+    assert sum(len(s) for s in splits.values()) == 10, "every chair of the three lists, and no table"
+    assert splits["train"].part_names == ("back", "seat", "leg", "arm")
+    assert int(splits["test"].labels.max()) <= 3 and splits["test"].points.shape[1:] == (128, 3)
+
+    authors = tmp_path / "authors"
+    (authors / "chair").mkdir(parents=True)
+    for k in range(6):
+        s = make_shape("chair", k, n_points=200)
+        np.save(authors / "chair" / f"x{k}.npy", np.concatenate([s.points, s.normals], axis=1))
+    np.save(authors / "chair_train.npy", np.array([f"x{k}" for k in range(4)]))
+    (authors / "chair_test.txt").write_text("x4.npy\nx5.npy\n")
+    assert data_layout(authors, "chair") == "authors"
+    splits = load_splits(TrainConfig(category="chair", data_dir=str(authors), n_points=128))
+    assert sum(len(s) for s in splits.values()) == 6 and splits["train"].labels is None
 
 
 def test_bad_inputs(tmp_path, collection):

@@ -15,8 +15,10 @@ from cuboidlib.evaluation import (
 )
 from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.geometry import Cuboids, sample_cuboid_surfaces
+from cuboidlib.io import write_point_cloud
 from cuboidlib.metrics import ChamferConvention
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.shapes import make_shape
 from cuboidlib.dataset import ShapeSet, load_splits
 from cuboidlib.train import TrainConfig, Trainer
 
@@ -201,3 +203,18 @@ def test_evaluate_command_scores_the_test_split(tmp_path, capsys, monkeypatch):
     assert main(["evaluate", str(tmp_path / "missing.pt")]) == 2
     assert "no such checkpoint" in capsys.readouterr().err
     assert os.path.exists(tmp_path / "run" / "last.pt")
+
+    # an external labelled data set: a folder of labelled point-cloud files, scored whole
+    external = tmp_path / "external"
+    external.mkdir()
+    for k in range(5):
+        s = make_shape("chair", 100 + k, n_points=150)
+        write_point_cloud(external / f"chair_{k}.ply", s.points * 40 + 3, s.normals, s.labels)  # other units
+    code = main(["evaluate", str(tmp_path / "run" / "best.pt"), "--data-dir", str(external), "--split", "all",
+                 "--samples", "256", "--device", "cpu", "--json", str(tmp_path / "ext.json")])
+    assert code == 0, capsys.readouterr().err
+    assert str(external) in capsys.readouterr().out
+    ext = json.loads((tmp_path / "ext.json").read_text())
+    assert ext["split"] == "all" and ext["results"][0]["n_shapes"] == 5 and 0 <= ext["results"][0]["miou"] <= 1
+    assert main(["evaluate", str(tmp_path / "run" / "best.pt"), "--data-dir", str(tmp_path / "none")]) == 2
+    assert "no such data folder" in capsys.readouterr().err
