@@ -399,6 +399,28 @@ def _refined(pc, out, steps: int, fit_config, seed: int, progress: bool):
     return fit, method
 
 
+def candidate_frames(front: str | None = None) -> list[tuple[str, str]]:
+    """Every (up, front) pair of axes at right angles (24), or the 6 ups with ``front`` fixed where possible."""
+    pairs = [(u, f) for u in AXES for f in AXES if abs(int(np.dot(AXES[u], AXES[f]))) == 0]
+    return [(u, f) for u, f in pairs if front is None or f == front]
+
+
+def _best_frame(shape, model, front, refine: int, **options) -> Abstraction:
+    """``abstract(up="auto")``: the network's result in every candidate frame, the one with the lowest
+    Chamfer distance kept (then refined, if asked); ``method["up_auto"]`` records every candidate's score."""
+    if model is None:
+        raise ValueError("up='auto' chooses the frame by the network's reconstruction: give a model")
+    frames = candidate_frames(front)
+    if not frames:
+        raise ValueError(f"front {front!r} is not an axis")
+    scores = {(u, f): abstract(shape, model, up=u, front=f, **options).chamfer for u, f in frames}
+    up, front = min(scores, key=scores.get)
+    result = abstract(shape, model, up=up, front=front, refine=refine, **options)
+    result.method["up_auto"] = {"chosen": {"up": up, "front": front},
+                                "chamfer": {f"{u} {f}": round(c, 7) for (u, f), c in scores.items()}}
+    return result
+
+
 def abstract(
     shape,
     model=None,
@@ -436,6 +458,11 @@ def abstract(
         progress: show the fit's progress bar.
         up, front: the input's up axis and the direction its front faces (:func:`frame_rotation`); the
             networks were trained on +y up, facing +z. The result is written back in the input's axes.
+            ``up="auto"`` (with a network) tries the 24 frames (with ``front`` given, the 4 ups at right
+            angles to it) and keeps the one whose cuboids reconstruct the shape best (lowest Chamfer
+            distance); ``method["up_auto"]`` says which it chose and every frame's score. The choice is
+            only as good as the network on that input: keep ``n_points`` at the network's training size
+            (with 256 points an upright chair was reconstructed better upside down).
         refine: with a network, this many steps of the per-shape fit started from the network's
             cuboids and allocation (``fit_cuboids(start=...)``; settings from ``fit_config``, default
             ``FitConfig(lr=REFINE_LR)``): tighter cuboids on this shape that keep the network's cuboid
@@ -445,6 +472,10 @@ def abstract(
     """
     from .fitting import FitConfig, fit_cuboids
 
+    if up == "auto":
+        return _best_frame(shape, model, front, refine=refine, n_points=n_points, seed=seed, threshold=threshold,
+                           centers=centers, fit_config=fit_config, part_names=part_names, device=device,
+                           progress=progress)
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:

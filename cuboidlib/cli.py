@@ -382,9 +382,10 @@ def _add_shape_options(p) -> None:
                    help="seed of the point sampling, the fit and the Chamfer samples (default: 0)")
     p.add_argument("--normalized", action="store_true",
                    help="write in the normalised frame (bounding box centred, diagonal 1) instead of the input's")
-    p.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z"), default="y",
+    p.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z", "auto"), default="y",
                    help="the input's up axis (default: y; many CAD and scan files use z); results are written "
-                   "back in the input's axes")
+                   "back in the input's axes. auto (abstract only): try every frame and keep the one the network "
+                   "reconstructs best, and say which")
     p.add_argument("--front", choices=("x", "y", "z", "-x", "-y", "-z"),
                    help="the direction the input's front faces (default: z, or -y when --up z)")
     p.add_argument("--part-names", type=_part_names, metavar="NAMES",
@@ -588,6 +589,10 @@ def _save(args, result, stem: str | None, bar) -> list:
 def _report(args, result, written: list, seconds: float) -> None:
     if args.quiet:
         return
+    chosen = (result.method or {}).get("up_auto", {}).get("chosen")
+    if chosen:
+        print(f"--up auto chose up {chosen['up']}, front {chosen['front']} (the lowest Chamfer distance of "
+              f"{len(result.method['up_auto']['chamfer'])} frames)")
     used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
     print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
           f"{result.chamfer:.4g} ({how}; on the normalised shape) | {seconds:.1f} s")

@@ -194,3 +194,16 @@ def test_refining_a_network_result_keeps_its_cuboid_slots_and_records_the_steps(
         cuboidlib.abstract(path, model=None, refine=10)
     with pytest.raises(ValueError, match="refine must be a non-negative number of steps"):
         cuboidlib.abstract(path, model="table", refine=-1)
+
+
+def test_up_auto_finds_the_frame_of_a_turned_shape_by_the_networks_reconstruction():
+    s = make_shape("chair", 3, n_points=1024)
+    turn = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # +y up, facing +z  ->  +z up, facing -y (Blender's)
+    cloud = np.concatenate([s.points @ turn.T, s.normals @ turn.T], axis=1)
+    auto = cuboidlib.abstract(cloud, model="chair", up="auto")
+    assert auto.method["up_auto"]["chosen"] == {"up": "z", "front": "-y"}
+    assert len(auto.method["up_auto"]["chamfer"]) == 24
+    assert abs(auto.chamfer - min(auto.method["up_auto"]["chamfer"].values())) < 1e-6, "the best frame is kept"
+    assert auto.chamfer < 0.5 * cuboidlib.abstract(cloud, model="chair").chamfer, "the default +y up fits far worse"
+    with pytest.raises(ValueError, match="up='auto' chooses the frame by the network"):
+        cuboidlib.abstract(cloud, model=None, up="auto")
