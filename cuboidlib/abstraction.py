@@ -14,6 +14,9 @@ has part labels, give every cuboid the part most of its points carry (Sec. 4.2).
 the normalised cuboids and the normalisation, so it can be written in the input's own coordinates
 (the default) or in the normalised ones. The command-line tool's ``fit`` and ``abstract`` are this
 function and :meth:`Abstraction.save`.
+
+Why one file: the result types and the pipeline that fills them change together (every field of
+:class:`Abstraction` is set by :func:`abstract`, and the frame handling is needed by both).
 """
 
 from __future__ import annotations

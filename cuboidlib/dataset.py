@@ -364,21 +364,6 @@ def load_splits(config: "TrainConfig", progress: bool = False) -> dict[str, Shap
                                                                     config.split_seed).items()}
 
 
-def resolve_device(name: str) -> torch.device:
-    """"auto" -> CUDA when available, else CPU; otherwise ``torch.device(name)`` (CUDA must exist)."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except (RuntimeError, TypeError) as exc:
-        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}") from exc
-    if device.type not in ("cpu", "cuda"):
-        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
-    return device
-
-
 # ----------------------------------------------------------------------------------------------
 # Input noise (Table 4 of the paper)
 # ----------------------------------------------------------------------------------------------
