@@ -193,12 +193,12 @@ def load_model(
     """
     state = load_checkpoint(path, map_location=device)
     stored = state["config"]["model"]
-    if config is not None:
-        check_config_matches(stored, config.to_dict(), f"model config requested for {path}")
     try:
         model_config = ModelConfig.from_dict(stored)  # sizes are bounded here, before any allocation
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: the stored model config is not usable: {exc}") from exc
+    if config is not None:  # compared with defaults filled in, so older checkpoints compare equal
+        check_config_matches(model_config.to_dict(), config.to_dict(), f"model config requested for {path}")
     model = CuboidAbstractionNet(model_config).to(device)
     try:
         model.load_state_dict(state["model"], strict=True)

@@ -94,6 +94,9 @@ class ModelConfig(ConfigDict):
     cosine_affinity: None (the paper's dot product, default) or a positive number s: the affinity
         becomes A_mn = s cos(g^c_m, g^p_n), bounded by |A_mn| <= s, so the softmax of Eq. (3) can
         never saturate beyond a gap of 2 s (a change of the course's recipe, not the paper's).
+    affinity_temperature: T >= 1 divides the affinity before the softmax, W = softmax(A / T), so the
+        allocation stays softer and a misallocated point keeps a gradient towards other cuboids; the
+        argmax, hence the segmentation, does not change with T (default 1: the paper's Eq. (3)).
     negative_slope: slope of every LeakyReLU (public code: 0.2).
 
     ``to_dict`` / ``from_dict`` convert to and from a dict of plain JSON types (for checkpoints).
@@ -111,6 +114,7 @@ class ModelConfig(ConfigDict):
     attention_scale: bool = False
     negative_slope: float = 0.2
     cosine_affinity: float | None = None
+    affinity_temperature: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("edge_dims", "cuboid_feature_dims"):
@@ -141,6 +145,10 @@ class ModelConfig(ConfigDict):
             if self.attention_scale:
                 raise ValueError("ModelConfig.cosine_affinity and attention_scale exclude each other; set one of them")
             object.__setattr__(self, "cosine_affinity", float(cos))
+        temp = self.affinity_temperature
+        if isinstance(temp, bool) or not isinstance(temp, (int, float)) or not 1.0 <= temp <= 100.0:
+            raise ValueError(f"ModelConfig.affinity_temperature must be a number in [1, 100], got {temp!r}")
+        object.__setattr__(self, "affinity_temperature", float(temp))
         slope = self.negative_slope
         if isinstance(slope, bool) or not isinstance(slope, (int, float)) or not 0.0 <= slope < 1.0:
             raise ValueError(f"ModelConfig.negative_slope must be a number in [0, 1), got {slope!r}")
@@ -693,16 +701,18 @@ class CuboidSegmentation(nn.Module):
     linear layers); affinity A[b, n, m] = g^c_m . g^p_n (Eq. (2), stored (B, N, M)); W = softmax of
     A over the M cuboids (Eq. (3)); argmax over M gives the segmentation. ``attention_scale=True``
     divides A by sqrt(seg_dim) as the public code does (the paper has no scale);
-    ``cosine_affinity=s`` uses A = s cos(g^c_m, g^p_n) instead, bounded by s.
+    ``cosine_affinity=s`` uses A = s cos(g^c_m, g^p_n) instead, bounded by s;
+    ``temperature=T`` divides A by T (the returned logits include every factor).
     """
 
     def __init__(self, point_dim: int, cuboid_dim: int, seg_dim: int = 64, attention_scale: bool = False,
-                 cosine_affinity: float | None = None):
+                 cosine_affinity: float | None = None, temperature: float = 1.0):
         super().__init__()
         self.point_proj = nn.Linear(point_dim, seg_dim, bias=False)
         self.cuboid_proj = nn.Linear(cuboid_dim, seg_dim, bias=False)
         self.scale = 1.0 / math.sqrt(seg_dim) if attention_scale else 1.0
         self.cosine_affinity = cosine_affinity
+        self.temperature = float(temperature)
 
     def forward(
         self, point_features: torch.Tensor, cuboid_features: torch.Tensor
@@ -716,6 +726,8 @@ class CuboidSegmentation(nn.Module):
             affinity = affinity * self.cosine_affinity
         elif self.scale != 1.0:
             affinity = affinity * self.scale
+        if self.temperature != 1.0:
+            affinity = affinity / self.temperature
         return affinity, torch.softmax(affinity, dim=-1)
 
 
@@ -786,7 +798,7 @@ class CuboidAbstractionNet(nn.Module):
         self.abstraction = ShapeAbstraction(cfg)
         self.segmentation = CuboidSegmentation(
             cfg.point_feature_dim, cfg.cuboid_feature_dims[-1], cfg.seg_dim, cfg.attention_scale,
-            cfg.cosine_affinity,
+            cfg.cosine_affinity, cfg.affinity_temperature,
         )
 
     def _check_points(self, points) -> torch.Tensor:

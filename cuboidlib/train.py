@@ -101,6 +101,10 @@ _ORDER, _LOSS, _LATENT, _VALIDATION = range(4)
 # ----------------------------------------------------------------------------------------------
 
 
+# Model settings that change no weight, so ``init_from`` may differ in them
+_WEIGHT_NEUTRAL = ("affinity_temperature",)
+
+
 @dataclass
 class TrainConfig(ConfigDict):
     """Everything a training run depends on. Defaults: the paper's (Sec. 3.4.5 and Sec. 4.1).
@@ -463,9 +467,17 @@ class Trainer:
     # ------------------------------------------------------------------------------ state
 
     def _initialise_from(self, path: Path) -> None:
-        """Start from the weights of the checkpoint ``path`` (same model configuration required)."""
+        """Start from the weights of the checkpoint ``path``.
+
+        The model configuration must match, except ``affinity_temperature``, which changes no
+        weight: a second stage may soften the allocation of the first one.
+        """
         state = load_checkpoint(path)
-        check_config_matches(state["config"]["model"], self.config.model, f"model config of init_from {path}")
+        stored = ModelConfig.from_dict(state["config"]["model"]).to_dict()
+        requested = ModelConfig.from_dict(self.config.model).to_dict()
+        for name in _WEIGHT_NEUTRAL:
+            stored.pop(name), requested.pop(name)
+        check_config_matches(stored, requested, f"model config of init_from {path}")
         self.model.load_state_dict(state["model"], strict=True)
 
     def learning_rate(self, step: int) -> float:
