@@ -41,12 +41,21 @@ from .export import (
 from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
 
-__all__ = ["Abstraction", "AbstractionBatch", "abstract", "result_files", "frame_rotation", "AXES", "REFINE_LR"]
+__all__ = ["Abstraction", "AbstractionBatch", "abstract", "result_files", "frame_rotation", "AXES", "REFINE_LR",
+           "OrientationWarning", "ORIENTATION_RATIO"]
 
 #: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``).
 #: The fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not
 #: (on 16 test chairs, 100 steps: Chamfer 1.57e-3 against 1.86e-3 with 0.01; the network: 2.34e-3).
 REFINE_LR = 0.003
+
+#: ``abstract(shape, model)`` without ``up`` warns when another up axis gives the network's cuboids a
+#: Chamfer distance below this fraction of the +y-up one (measured by ``experiments/orientation_check.py``).
+ORIENTATION_RATIO = 0.5
+
+
+class OrientationWarning(UserWarning):
+    """The input seems to use another up axis than the networks' +y (``abstract`` without ``up``)."""
 
 
 @dataclass
@@ -424,6 +433,32 @@ def _best_frame(shape, model, front, refine: int, **options) -> Abstraction:
     return result
 
 
+def up_axis_scores(shape, model, **options) -> dict[str, float]:
+    """The Chamfer distance of the network's cuboids with each of the six axes taken as up (default
+    fronts), {"y": ..., "-y": ..., "x": ..., ...}: the measurement behind the orientation warning."""
+    return {u: abstract(shape, model, up=u, **options).chamfer for u in AXES}
+
+
+def _checked_orientation(shape, model, front, refine: int, **options) -> Abstraction:
+    """``abstract`` without ``up``: +y up, with a warning when another up axis fits the network much better
+    (its Chamfer distance below ``ORIENTATION_RATIO`` times the +y one); ``method["up_check"]`` keeps the scores."""
+    import warnings
+
+    scores = up_axis_scores(shape, model, **options)
+    best = min(scores, key=scores.get)
+    result = abstract(shape, model, up="y", front=front, refine=refine, **options)
+    suggested = best if best != "y" and scores[best] < ORIENTATION_RATIO * scores["y"] else None
+    result.method["up_check"] = {"chamfer": {u: round(c, 7) for u, c in scores.items()}, "suggested": suggested,
+                                 "ratio": ORIENTATION_RATIO}
+    if suggested is not None:
+        name = result.source or "the shape"
+        warnings.warn(OrientationWarning(
+            f"{name} looks like it is not +y up: with up {suggested} the network's cuboids reconstruct it "
+            f"{scores['y'] / scores[best]:.1f}x better (Chamfer {scores[best]:.3g} against {scores['y']:.3g}); "
+            f"pass up={suggested!r} (--up {suggested}) or up='auto', or up='y' if it is upright"), stacklevel=3)
+    return result
+
+
 def abstract(
     shape,
     model=None,
@@ -436,7 +471,7 @@ def abstract(
     part_names=None,
     device: str = "cpu",
     progress: bool = False,
-    up: str = "y",
+    up: str | None = None,
     front: str | None = None,
     refine: int = 0,
 ) -> Abstraction:
@@ -461,6 +496,10 @@ def abstract(
         progress: show the fit's progress bar.
         up, front: the input's up axis and the direction its front faces (:func:`frame_rotation`); the
             networks were trained on +y up, facing +z. The result is written back in the input's axes.
+            ``up=None`` (default) is +y; with a network it also runs the network with each of the six
+            axes as up (:func:`up_axis_scores`, a few tenths of a second) and warns
+            (:class:`OrientationWarning`) when another one reconstructs the shape much better;
+            ``method["up_check"]`` keeps the scores. Give ``up="y"`` to skip the check.
             ``up="auto"`` (with a network) tries the 24 frames (with ``front`` given, the 4 ups at right
             angles to it) and keeps the one whose cuboids reconstruct the shape best (lowest Chamfer
             distance); ``method["up_auto"]`` says which it chose and every frame's score. The choice is
@@ -479,6 +518,11 @@ def abstract(
         return _best_frame(shape, model, front, refine=refine, n_points=n_points, seed=seed, threshold=threshold,
                            centers=centers, fit_config=fit_config, part_names=part_names, device=device,
                            progress=progress)
+    if up is None and model is not None:
+        return _checked_orientation(shape, model, front, refine=refine, n_points=n_points, seed=seed,
+                                    threshold=threshold, centers=centers, fit_config=fit_config,
+                                    part_names=part_names, device=device, progress=progress)
+    up = "y" if up is None else up
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:

@@ -382,10 +382,11 @@ def _add_shape_options(p) -> None:
                    help="seed of the point sampling, the fit and the Chamfer samples (default: 0)")
     p.add_argument("--normalized", action="store_true",
                    help="write in the normalised frame (bounding box centred, diagonal 1) instead of the input's")
-    p.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z", "auto"), default="y",
-                   help="the input's up axis (default: y; many CAD and scan files use z); results are written "
-                   "back in the input's axes. auto (abstract only): try every frame and keep the one the network "
-                   "reconstructs best, and say which")
+    p.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z", "auto"),
+                   help="the input's up axis (default: y, and abstract warns when another axis fits the network "
+                   "much better; many CAD and scan files use z); results are written back in the input's axes. "
+                   "auto (abstract only): try every frame and keep the one the network reconstructs best, and say "
+                   "which")
     p.add_argument("--front", choices=("x", "y", "z", "-x", "-y", "-z"),
                    help="the direction the input's front faces (default: z, or -y when --up z)")
     p.add_argument("--part-names", type=_part_names, metavar="NAMES",
@@ -587,6 +588,12 @@ def _save(args, result, stem: str | None, bar) -> list:
 
 
 def _report(args, result, written: list, seconds: float) -> None:
+    check = (result.method or {}).get("up_check", {})
+    if check.get("suggested"):
+        up, scores = check["suggested"], check["chamfer"]
+        print(f"warning: {result.source or 'the shape'} looks like it is not +y up: with --up {up} the network "
+              f"reconstructs it {scores['y'] / scores[up]:.1f}x better; pass --up {up} (or --up auto), or --up y "
+              "if it is upright", file=sys.stderr)
     if args.quiet:
         return
     chosen = (result.method or {}).get("up_auto", {}).get("chosen")
@@ -687,7 +694,11 @@ def _cmd_abstract(args) -> int:
     shapes = _shape_files(args.shape)
     _check_out_dir(args)
 
-    from .abstraction import abstract
+    import warnings
+
+    from .abstraction import OrientationWarning, abstract
+
+    warnings.simplefilter("ignore", OrientationWarning)  # _report prints it, without a source line
 
     def one(path: str, progress: bool):
         return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import cuboidlib
-from cuboidlib.abstraction import Abstraction
+from cuboidlib.abstraction import Abstraction, OrientationWarning
 from cuboidlib.export import read_cuboids_json
 from cuboidlib.fitting import FitConfig
 from cuboidlib.io import read_point_cloud, write_point_cloud
@@ -204,6 +204,26 @@ def test_up_auto_finds_the_frame_of_a_turned_shape_by_the_networks_reconstructio
     assert auto.method["up_auto"]["chosen"] == {"up": "z", "front": "-y"}
     assert len(auto.method["up_auto"]["chamfer"]) == 24
     assert abs(auto.chamfer - min(auto.method["up_auto"]["chamfer"].values())) < 1e-6, "the best frame is kept"
-    assert auto.chamfer < 0.5 * cuboidlib.abstract(cloud, model="chair").chamfer, "the default +y up fits far worse"
+    with pytest.warns(OrientationWarning, match=r"with up z the network's cuboids reconstruct it"):
+        default = cuboidlib.abstract(cloud, model="chair")
+    assert auto.chamfer < 0.5 * default.chamfer, "the default +y up fits far worse"
+    assert default.method["up_check"]["suggested"] == "z" and default.frame is None, "a warning, not a turn"
     with pytest.raises(ValueError, match="up='auto' chooses the frame by the network"):
         cuboidlib.abstract(cloud, model=None, up="auto")
+
+
+def test_an_upright_shape_gets_no_orientation_warning_and_up_y_skips_the_check():
+    import warnings
+
+    s = make_shape("chair", 3, n_points=1024)
+    cloud = np.concatenate([s.points, s.normals], axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OrientationWarning)
+        checked = cuboidlib.abstract(cloud, model="chair")
+    scores = checked.method["up_check"]["chamfer"]
+    assert sorted(scores) == sorted(["x", "y", "z", "-x", "-y", "-z"]) and checked.method["up_check"]["suggested"] is None
+    assert min(scores, key=scores.get) == "y"
+    told = cuboidlib.abstract(cloud, model="chair", up="y")
+    assert "up_check" not in told.method, "an explicit up is trusted"
+    assert abs(told.chamfer - scores["y"]) < 1e-6 and abs(checked.chamfer - told.chamfer) < 1e-6
+    assert "up_check" not in cuboidlib.abstract(cloud[:300], model=None, fit_config=FitConfig(steps=5)).method

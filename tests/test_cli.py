@@ -29,6 +29,7 @@ from cuboidlib.export import MESH_FORMATS, read_cuboids_json
 from cuboidlib.fitting import FitConfig
 from cuboidlib.io import read_point_cloud, write_point_cloud
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.shapes import make_shape
 from cuboidlib.train import TrainConfig
 
 SAMPLES = Path(cuboidlib.__file__).resolve().parent.parent / "data_samples"
@@ -252,6 +253,20 @@ def test_many_shapes_in_one_run_with_a_summary_and_failures_skipped(tmp_path, ch
         "chair_0.json", "chair_1.json"]
     assert main(["fit", str(tmp_path / "nothing_*.ply"), "--out", str(tmp_path / "none")]) == 2
     assert_one_line_error(capsys.readouterr().err, "no mesh or point cloud file matches this pattern")
+
+
+def test_abstract_warns_on_stderr_when_the_input_looks_z_up(tmp_path, capsys):
+    from cuboidlib.abstraction import frame_rotation
+
+    s = make_shape("chair", 3, n_points=1024)
+    path = tmp_path / "chair_zup.xyz"
+    np.savetxt(path, np.concatenate([s.points @ frame_rotation("z"), s.normals @ frame_rotation("z")], axis=1))
+    assert main(["abstract", str(path), "--model", "chair", "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: chair_zup.xyz looks like it is not +y up: with --up z the network reconstructs it" in err
+    assert err.count("\n") == 1, err
+    assert main(["abstract", str(path), "--model", "chair", "--up", "z", "--out", str(tmp_path / "z"), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
 
 
 def test_up_auto_says_which_frame_it_chose(tmp_path, capsys):

@@ -16,6 +16,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+SOLUTIONS = sorted((ROOT / "notebooks" / "solutions").glob("*_solutions.ipynb"))
 
 # PyPI name -> conda-forge name, where they differ.
 CONDA_NAMES = {"torch": "pytorch-cpu"}
@@ -86,13 +87,13 @@ def _source(cell: dict) -> str:
     return src if isinstance(src, str) else "".join(src)
 
 
-@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+@pytest.mark.parametrize("nb_path", NOTEBOOKS + SOLUTIONS, ids=lambda p: p.name)
 def test_notebook_was_executed_in_order_from_a_fresh_kernel(nb_path):
     code = [c for c in _cells(nb_path) if c["cell_type"] == "code"]
     counts = [c.get("execution_count") for c in code]
     assert counts == list(range(1, len(code) + 1)), (
         f"{nb_path.name}: execution counts {counts} are not 1, 2, 3, ...; re-run it top to bottom from a "
-        "fresh kernel: jupyter nbconvert --to notebook --execute --inplace " + f"notebooks/{nb_path.name}"
+        "fresh kernel: jupyter nbconvert --to notebook --execute --inplace " + str(nb_path.relative_to(ROOT))
     )
     errors = [o for c in code for o in c.get("outputs", []) if o.get("output_type") == "error"]
     assert not errors, f"{nb_path.name}: committed with error outputs"
@@ -115,7 +116,33 @@ def test_notebook_has_the_course_form(nb_path):
     assert re.search(r"^\s*assert ", code, re.M), f"{nb_path.name}: the lesson's claims are not checked by asserts"
 
 
-@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+def _exercise_numbers(text: str) -> list[int]:
+    return [int(n) for n in re.findall(r"^(\d+)\. ", text, re.M)]
+
+
+@pytest.mark.parametrize("solutions", SOLUTIONS, ids=lambda p: p.name)
+def test_every_exercise_of_a_lesson_has_a_solution_that_states_its_cost(solutions):
+    lesson = ROOT / "notebooks" / solutions.name.replace("_solutions", "")
+    assert lesson.is_file(), f"{solutions.name}: no lesson {lesson.name}"
+    exercises = next(_source(c) for c in _cells(lesson) if _source(c).lstrip().lower().startswith("## exercises"))
+    numbers = _exercise_numbers(exercises)
+    assert numbers == list(range(1, len(numbers) + 1)) and numbers, f"{lesson.name}: exercises are not numbered 1, 2, ..."
+    assert f"solutions/{solutions.name}" in exercises, f"{lesson.name}: the exercises do not link {solutions.name}"
+    costs = re.findall(r"\((?:about |under )?\d+(?:\.\d+)?(?:-\d+)? ?(?:s|seconds?|min|minutes?)\)", exercises)
+    assert len(costs) >= len(numbers), f"{lesson.name}: every exercise states its cost in brackets (found {costs})"
+    cells = [_source(c) for c in _cells(solutions)]
+    for n in numbers:
+        heads = [i for i, text in enumerate(cells) if text.startswith(f"## Exercise {n}:")]
+        assert len(heads) == 1, f"{solutions.name}: no single '## Exercise {n}:' section"
+        assert re.search(r"\*Cost: [^*]*(second|s|minute|min)[^*]*\*", cells[heads[0]]), (
+            f"{solutions.name}: exercise {n} does not state its cost")
+        code = next((text for text in cells[heads[0] + 1:] if not text.startswith("## ")), "")
+        assert code, f"{solutions.name}: exercise {n} has no solution"
+    code = "\n".join(_source(c) for c in _cells(solutions) if c["cell_type"] == "code")
+    assert re.search(r"^\s*assert ", code, re.M), f"{solutions.name}: the answers' claims are not checked by asserts"
+
+
+@pytest.mark.parametrize("nb_path", NOTEBOOKS + SOLUTIONS, ids=lambda p: p.name)
 def test_notebook_names_the_installed_kernel_as_jupyterlab_does(nb_path):
     # ipykernel installs the kernel "python3" with the display name "Python 3 (ipykernel)"; a notebook that
     # stores another name is marked as changed when JupyterLab opens it, and a save leaves a diff
@@ -127,7 +154,14 @@ def test_notebook_names_the_installed_kernel_as_jupyterlab_does(nb_path):
         f"{nb_path.name}: kernelspec {stored} differs from the installed kernel's")
 
 
-@pytest.mark.parametrize("nb_path", NOTEBOOKS, ids=lambda p: p.name)
+@pytest.mark.parametrize("nb_path", NOTEBOOKS + SOLUTIONS, ids=lambda p: p.name)
+def test_notebook_lines_read_without_scrolling(nb_path):
+    cells = json.loads(nb_path.read_text())["cells"]
+    long = [(i, len(line)) for i, c in enumerate(cells) for line in _source(c).split("\n") if len(line) > 200]
+    assert not long, f"{nb_path.name}: (cell, length) of lines over 200 characters: {long}"
+
+
+@pytest.mark.parametrize("nb_path", NOTEBOOKS + SOLUTIONS, ids=lambda p: p.name)
 def test_notebook_stays_small(nb_path):
     assert nb_path.stat().st_size < 5 * 2**20, f"{nb_path.name} is larger than 5 MiB"
 
