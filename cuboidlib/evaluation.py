@@ -10,7 +10,9 @@ each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), whi
   paper's "symmetric L2 CD on 4096 points" read as squared L2, mean per direction, sum of the two
   directions, scale 1), averaged over shapes.
 * **NC**: normal consistency, mean |n . n'| between each input normal and the normal of the nearest
-  point sampled on the cuboids, averaged over shapes.
+  point sampled on the cuboids, averaged over shapes (``normal_consistency``); ``normal_consistency_both``
+  also looks the other way, from every cuboid sample to its nearest input point, and averages the two
+  (:func:`cuboidlib.metrics.normal_consistency` with ``directions="both"``).
 * **mIoU** by the paper's label transfer (Sec. 4.2): the paper labels each primitive with the part
   that most of its points carry on a random 20 % of the shapes, then scores the test set with those
   labels. Here the labelled 20 % is drawn (seeded) from the evaluated split itself and the mIoU is
@@ -130,15 +132,16 @@ def score_cuboids(
                         "n_samples": convention.n_samples, "convention": convention.describe(),
                         "value": float(values.double().mean())})
     n_samples = conventions[0].n_samples
-    nc = torch.cat([
+    nc = {directions: torch.cat([
         normal_consistency(points[i:i + 1], normals[i:i + 1], *cuboids(i), n_samples=n_samples,
-                           generator=_shape_generator(seed, i))
+                           generator=_shape_generator(seed, i), directions=directions)
         for i in range(n)
-    ])
+    ]) for directions in ("points", "both")}
     return {
         "n_shapes": n,
         "chamfer": chamfer,
-        "normal_consistency": float(nc.double().mean()),
+        "normal_consistency": float(nc["points"].double().mean()),
+        "normal_consistency_both": float(nc["both"].double().mean()),
         "normal_samples": n_samples,
         **segmentation_scores(shapes, pred, label_transfer_fraction, seed),
     }

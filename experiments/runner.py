@@ -46,11 +46,13 @@ files are in :mod:`summaries`, the data, noise and recipes in the library.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing
 import os
 import shlex
 import sys
+import tempfile
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -333,9 +335,9 @@ def nearest_cuboid_segmentation(shapes: ShapeSet, pred: AbstractionBatch, distan
 
 
 def _metrics(scores: dict) -> dict:
-    """The flat numbers of a :func:`score_cuboids` result: cd, nc, miou, n_ac."""
-    return {"cd": scores["chamfer"][0]["value"], "nc": scores["normal_consistency"], "miou": scores["miou"],
-            "n_ac": scores["n_ac"]}
+    """The flat numbers of a :func:`score_cuboids` result: cd, nc (from the points), nc_both (both ways), miou, n_ac."""
+    return {"cd": scores["chamfer"][0]["value"], "nc": scores["normal_consistency"],
+            "nc_both": scores["normal_consistency_both"], "miou": scores["miou"], "n_ac": scores["n_ac"]}
 
 
 def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dict) -> list[dict]:
@@ -356,12 +358,14 @@ def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dic
     metrics = _metrics(scores)
     if options.get("sigma_n") is not None:
         scores["clean"] = score_cuboids(ShapeSet(clean.points, clean.normals, None, clean.indices), pred)
-        metrics.update(cd_clean=scores["clean"]["chamfer"][0]["value"], nc_clean=scores["clean"]["normal_consistency"])
+        metrics.update(cd_clean=scores["clean"]["chamfer"][0]["value"], nc_clean=scores["clean"]["normal_consistency"],
+                       nc_both_clean=scores["clean"]["normal_consistency_both"])
     if options.get("reference_points"):
         ref = load_splits(config.replace(n_points=options["reference_points"]))["test"]
         scores["reference"] = score_cuboids(ShapeSet(ref.points, ref.normals, None, ref.indices), pred)
         metrics.update(cd_reference=scores["reference"]["chamfer"][0]["value"],
-                       nc_reference=scores["reference"]["normal_consistency"])
+                       nc_reference=scores["reference"]["normal_consistency"],
+                       nc_both_reference=scores["reference"]["normal_consistency_both"])
     results = [{"method": options.get("method", "network"), "metrics": metrics, "scores": scores}]
     if options.get("refine"):
         results.append(_refine_and_score(test, pred, options["refine"]))
@@ -411,7 +415,10 @@ def execute(run: Run, run_dir: str | os.PathLike) -> dict:
                 splits = load_splits(run.config)
                 if run.options.get("sigma_n"):
                     splits = noisy_splits(splits, run.options["sigma_n"], run.config.data_seed)
-                trained = Trainer(run.config, run_dir, quiet=True, splits=splits).run()
+                # an interrupted earlier attempt (--resume) continues from its last checkpoint; the trainer
+                # refuses it if the configuration differs
+                resume = (Path(run_dir) / "last.pt").is_file()
+                trained = Trainer(run.config, run_dir, quiet=True, splits=splits, resume=resume).run()
                 record["training"] = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
                                       "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1)}
                 checkpoint = Path(run_dir) / "best.pt"
@@ -427,7 +434,34 @@ def execute(run: Run, run_dir: str | os.PathLike) -> dict:
         torch.set_num_threads(threads)
     record["seconds"] = round(time.perf_counter() - start, 1)
     record["cpu_seconds"] = round(time.process_time() - cpu_start, 1)  # = wall time on a quiet machine (1 thread)
+    if record["status"] == "ok":
+        _write_record(Path(run_dir), record)
     return record
+
+
+#: Each finished run leaves its record here, in its run folder, so that ``--resume`` can skip it.
+RECORD_FILE = "record.json"
+
+
+def _write_record(run_dir: Path, record: dict) -> None:
+    run_dir.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=run_dir, prefix=RECORD_FILE, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(record, f)
+    os.replace(tmp, run_dir / RECORD_FILE)  # atomic: an interrupted write leaves no half record
+
+
+def finished_record(run: Run, run_dir: Path) -> dict | None:
+    """The record a finished earlier attempt of ``run`` left in ``run_dir``, or None (none, failed, or made
+    with another configuration or options)."""
+    try:
+        record = json.loads((run_dir / RECORD_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    same = (record.get("status") == "ok" and record.get("name") == run.name and record.get("task") == run.task
+            and record.get("config") == run.config.to_dict()
+            and json.loads(json.dumps(run.options)) == record.get("options"))
+    return record if same else None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -489,13 +523,19 @@ def run_all(runs: Sequence[Run], runs_dir: str | os.PathLike, jobs: int = 2,
     if len(set(names)) != len(names):
         raise ValueError("run names must be unique")
     runs_dir = Path(runs_dir)
-    order = sorted(range(len(runs)), key=lambda i: -estimate_seconds(runs[i]))
     records: list[dict | None] = [None] * len(runs)
 
     def done(i: int, record: dict) -> None:
         records[i] = record
         finished = sum(r is not None for r in records)
         report(f"[{finished}/{len(runs)}] {_describe(record)}")
+
+    for i, run in enumerate(runs):  # finished by an earlier, interrupted invocation (--resume)
+        earlier = finished_record(run, runs_dir / run.name)
+        if earlier is not None:
+            earlier["reused"] = True
+            done(i, earlier)
+    order = sorted((i for i in range(len(runs)) if records[i] is None), key=lambda i: -estimate_seconds(runs[i]))
 
     if jobs == 1:
         for i in order:
@@ -618,6 +658,10 @@ class Experiment:
         p.add_argument("--out", default=str(RESULTS_DIR), help="folder of the results (default experiments/results)")
         p.add_argument("--runs-dir", default=str(RUNS_DIR),
                        help="folder of the training runs (checkpoints, logs; default runs/experiments)")
+        p.add_argument("--resume", action="store_true",
+                       help="continue the newest earlier invocation in --runs-dir: runs it finished (same configuration) "
+                            "are read back, not trained again, so an interrupted full run loses at most the runs in "
+                            "progress")
         p.add_argument("--plan", action="store_true", help="print the runs and the estimated time, run nothing")
         if self.add_arguments is not None:
             self.add_arguments(p)
@@ -701,6 +745,14 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
     stem = Path(args.out) / (experiment.name + ("_quick" if scale.quick else ""))
     started = datetime.now(timezone.utc)
     runs_dir = Path(args.runs_dir) / experiment.name / started.strftime("%Y%m%d-%H%M%S-%f")
+    if args.resume:
+        earlier = sorted(p for p in (Path(args.runs_dir) / experiment.name).glob("*-*-*") if p.is_dir())
+        if earlier:
+            runs_dir = earlier[-1]
+            reused = sum(finished_record(r, runs_dir / r.name) is not None for r in runs)
+            print(f"resuming {runs_dir}: {reused} of {len(runs)} runs already finished")
+        else:
+            print(f"--resume: no earlier invocation in {Path(args.runs_dir) / experiment.name}; starting a new one")
     info = machine()
     start = time.perf_counter()
     records = run_all(runs, runs_dir, args.jobs)
@@ -732,7 +784,8 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
         "estimated_seconds": round(estimate, 1),
         "settings": {"quick": scale.quick, "steps": scale.steps, "shapes": scale.n_shapes, "seeds": list(scale.seeds),
                      "batch_size": first.batch_size,
-                     "jobs": args.jobs, "runs_dir": str(runs_dir)},
+                     "jobs": args.jobs, "runs_dir": str(runs_dir),
+                     "reused_runs": sum(bool(r.get("reused")) for r in records)},
         "course_scale": COURSE_SCALE,
         "paper": experiment.paper,
         "summary": summary,

@@ -346,6 +346,26 @@ def test_runner_end_to_end_writes_results_with_provenance(tmp_path, capsys):
     assert boxes == max(1, round(record["results"][0]["metrics"]["n_ac"]))
 
 
+def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, capsys):
+    args = ["--quick", "--steps", "2", "--jobs", "1", "--out", str(tmp_path / "res"), "--runs-dir", str(tmp_path / "runs")]
+    assert runner.main(_tiny_experiment(), args) == 0
+    (folder,) = (tmp_path / "runs" / "tiny").iterdir()
+    first = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
+    (folder / "lambda0.2" / runner.RECORD_FILE).unlink()  # as if the second run had been interrupted
+    capsys.readouterr()
+    assert runner.main(_tiny_experiment(), args + ["--resume"]) == 0
+    out = capsys.readouterr().out
+    assert f"resuming {folder}: 1 of 2 runs already finished" in out
+    second = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
+    assert second["settings"]["runs_dir"] == str(folder) and second["settings"]["reused_runs"] == 1
+    assert [bool(r.get("reused")) for r in second["runs"]] == [True, False]
+    assert second["runs"][0]["results"] == first["runs"][0]["results"], "the finished run is read back as it was"
+    changed = args[:2] + ["3"] + args[3:] + ["--resume"]  # another step budget: another configuration, trained anew
+    assert runner.main(_tiny_experiment(), changed) == 0
+    third = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
+    assert third["settings"]["reused_runs"] == 0
+
+
 def test_a_failing_run_is_recorded_and_the_others_go_on(tmp_path):
     scale = runner.Scale(True, 2, 12, (0,))
     good = runner.Run("good", {"seed": 0}, scale.config("chair"))

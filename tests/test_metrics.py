@@ -124,6 +124,27 @@ def test_normal_consistency_of_perpendicular_normals_is_zero_and_random_is_about
     assert float(normal_consistency(points, random, *unit_cube(), generator=g)) == pytest.approx(0.5, abs=0.06)
 
 
+def test_two_way_normal_consistency_sees_the_inner_faces_of_stacked_slabs():
+    from cuboidlib.geometry import sample_cuboid_surfaces
+
+    cube = unit_cube()
+    surface = sample_cuboid_surfaces(*cube[:3], 4000, generator=torch.Generator().manual_seed(0))
+    points, normals = surface.points, surface.normals
+    both = normal_consistency(points, normals, *cube, generator=torch.Generator().manual_seed(1), directions="both")
+    assert float(both) > 0.95, "a cube against its own surface: about 1 (below only near the edges)"
+    # four slabs of height 1/4 stacked to fill the cube (the degenerate solution of Fig. 9): from the points
+    # everything looks right, but the six inner horizontal faces have no points with vertical normals near them
+    centers = torch.tensor([[0.0, -0.375 + 0.25 * k, 0.0] for k in range(4)])[None]
+    quats = torch.tensor([1.0, 0, 0, 0]).expand(1, 4, 4)
+    halves = torch.tensor([0.5, 0.125, 0.5]).expand(1, 4, 3)
+    kw = dict(generator=torch.Generator().manual_seed(1))
+    one_way = float(normal_consistency(points, normals, centers, quats, halves, **kw))
+    two_way = float(normal_consistency(points, normals, centers, quats, halves, directions="both", **kw))
+    assert one_way > 0.85 and two_way < one_way - 0.1, (one_way, two_way)
+    with pytest.raises(ValueError, match="directions must be 'points' or 'both'"):
+        normal_consistency(points, normals, *cube, directions="cuboids")
+
+
 def test_normal_consistency_rejects_mismatched_normals():
     points, normals = _face_centre_points()
     with pytest.raises(ValueError, match="normals"):
