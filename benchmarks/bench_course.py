@@ -1,6 +1,6 @@
 """Time the whole course as a learner runs it: every lesson top to bottom in a fresh kernel.
 
-Each notebook in notebooks/ is executed from a fresh Python kernel (nbclient, the engine of
+Each notebook in notebooks/ (the lessons and the optional appendix 04b; not the solutions) is executed from a fresh Python kernel (nbclient, the engine of
 ``jupyter nbconvert --execute``) in its own folder, as the learner opens it. The committed files
 are not touched: the executed copies are discarded. Prints each lesson's wall time, then the total.
 
@@ -29,7 +29,7 @@ def main() -> None:
                         help="only the notebooks whose names start with these prefixes (default: all)")
     parser.add_argument("--timeout", type=int, default=900, help="seconds allowed per cell (default 900)")
     args = parser.parse_args()
-    paths = sorted(NOTEBOOKS.glob("[0-9][0-9]_*.ipynb"))
+    paths = sorted(NOTEBOOKS.glob("[0-9][0-9]*_*.ipynb"))  # the lessons and the appendix 04b, not solutions/
     if args.lessons:
         paths = [p for p in paths if p.name.startswith(tuple(args.lessons))]
     if not paths:
