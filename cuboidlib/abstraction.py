@@ -372,6 +372,22 @@ def _default_front(up: str) -> str:
     return {"z": "-y", "-z": "y"}.get(up, "z")
 
 
+def _by_fitting(shape, n_points, seed, fit_config, rotation, part_names, source, progress):
+    """The branch of :func:`abstract` without a network: (point cloud, cuboids, segmentation, method)."""
+    from .fitting import FitConfig, fit_cuboids
+
+    config = fit_config if fit_config is not None else FitConfig(seed=seed)
+    pc = _turned(_as_point_cloud(shape, 2048 if n_points is None else n_points, seed), rotation)
+    _check_part_names(pc, part_names, source)
+    if len(pc) < config.num_cuboids:
+        raise ValueError(f"{source or 'shape'}: has {len(pc)} points, fewer than the {config.num_cuboids} cuboids")
+    fit = fit_cuboids(pc.points, pc.normals, config, progress=progress)
+    method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": config.num_cuboids,
+              "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
+              "converged": bool(fit.converged[0])}
+    return pc, fit.cuboids, fit.labels[0].cpu(), method
+
+
 def _by_network(shape, model, n_points, seed, threshold, centers, device, rotation, part_names, source):
     """The network branch of :func:`abstract`: (point cloud, cuboids, segmentation, method)."""
     from .applications import abstract_shapes, load_trained_model
@@ -433,10 +449,15 @@ def _best_frame(shape, model, front, refine: int, **options) -> Abstraction:
     return result
 
 
+def _up_axis_results(shape, model, **options) -> dict[str, Abstraction]:
+    """The network's result with each of the six axes taken as up (default fronts), keyed by the axis."""
+    return {u: abstract(shape, model, up=u, **options) for u in AXES}
+
+
 def up_axis_scores(shape, model, **options) -> dict[str, float]:
     """The Chamfer distance of the network's cuboids with each of the six axes taken as up (default
     fronts), {"y": ..., "-y": ..., "x": ..., ...}: the measurement behind the orientation warning."""
-    return {u: abstract(shape, model, up=u, **options).chamfer for u in AXES}
+    return {u: result.chamfer for u, result in _up_axis_results(shape, model, **options).items()}
 
 
 def _checked_orientation(shape, model, front, refine: int, **options) -> Abstraction:
@@ -444,9 +465,13 @@ def _checked_orientation(shape, model, front, refine: int, **options) -> Abstrac
     (its Chamfer distance below ``ORIENTATION_RATIO`` times the +y one); ``method["up_check"]`` keeps the scores."""
     import warnings
 
-    scores = up_axis_scores(shape, model, **options)
+    results = _up_axis_results(shape, model, **options)
+    scores = {u: r.chamfer for u, r in results.items()}
     best = min(scores, key=scores.get)
-    result = abstract(shape, model, up="y", front=front, refine=refine, **options)
+    if refine == 0 and front in (None, _default_front("y")):
+        result = results["y"]  # the check's own +y pass is the answer
+    else:
+        result = abstract(shape, model, up="y", front=front, refine=refine, **options)
     suggested = best if best != "y" and scores[best] < ORIENTATION_RATIO * scores["y"] else None
     result.method["up_check"] = {"chamfer": {u: round(c, 7) for u, c in scores.items()}, "suggested": suggested,
                                  "ratio": ORIENTATION_RATIO}
@@ -512,8 +537,6 @@ def abstract(
 
     Returns an :class:`Abstraction` (cuboids normalised, with the normalisation to write them back).
     """
-    from .fitting import FitConfig, fit_cuboids
-
     if up == "auto":
         return _best_frame(shape, model, front, refine=refine, n_points=n_points, seed=seed, threshold=threshold,
                            centers=centers, fit_config=fit_config, part_names=part_names, device=device,
@@ -532,16 +555,8 @@ def abstract(
     rotation = frame_rotation(up, front)
     source = Path(shape).name if isinstance(shape, (str, os.PathLike)) else getattr(shape, "source", None)
     if model is None:
-        config = fit_config if fit_config is not None else FitConfig(seed=seed)
-        pc = _turned(_as_point_cloud(shape, 2048 if n_points is None else n_points, seed), rotation)
-        _check_part_names(pc, part_names, source)
-        if len(pc) < config.num_cuboids:
-            raise ValueError(f"{source or 'shape'}: has {len(pc)} points, fewer than the {config.num_cuboids} cuboids")
-        fit = fit_cuboids(pc.points, pc.normals, config, progress=progress)
-        cuboids, segmentation = fit.cuboids, fit.labels[0].cpu()
-        method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": config.num_cuboids,
-                  "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
-                  "converged": bool(fit.converged[0])}
+        pc, cuboids, segmentation, method = _by_fitting(shape, n_points, seed, fit_config, rotation, part_names,
+                                                        source, progress)
     else:
         pc, out, method = _by_network(shape, model, n_points, seed, threshold, centers, device, rotation,
                                       part_names, source)

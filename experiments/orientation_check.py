@@ -22,15 +22,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from cuboidlib._files import write_text_atomic
 from cuboidlib.abstraction import ORIENTATION_RATIO, frame_rotation, up_axis_scores
 from cuboidlib.dataset import load_splits
 from cuboidlib.release import read_card
@@ -80,14 +79,6 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoints", type=Path, default=ROOT / "data_samples" / "checkpoints")
@@ -110,10 +101,10 @@ def main(argv: list[str] | None = None) -> int:
               "ratio": ORIENTATION_RATIO, "shapes_per_category": args.shapes, "frames": FRAMES,
               "wall_seconds": round(time.time() - start, 1), "torch": torch.__version__, "summary": summary,
               "shapes": rows}
-    write_atomic(args.out / "orientation_check.json", json.dumps(record, indent=1) + "\n")
+    write_text_atomic(args.out / "orientation_check.json", json.dumps(record, indent=1) + "\n")
     fields = list(rows[0])
     lines = [",".join(fields)] + [",".join("" if r[k] is None else str(r[k]) for k in fields) for r in rows]
-    write_atomic(args.out / "orientation_check.csv", "\n".join(lines) + "\n")
+    write_text_atomic(args.out / "orientation_check.csv", "\n".join(lines) + "\n")
     print(f"wrote {args.out / 'orientation_check.json'} and .csv ({time.time() - start:.0f} s)")
     return 0
 

@@ -52,7 +52,6 @@ import multiprocessing
 import os
 import shlex
 import sys
-import tempfile
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -63,6 +62,7 @@ from typing import Callable, Sequence
 
 import torch
 
+from cuboidlib._files import write_text_atomic
 from cuboidlib.checkpoint import load_model
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
 from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
@@ -444,11 +444,7 @@ RECORD_FILE = "record.json"
 
 
 def _write_record(run_dir: Path, record: dict) -> None:
-    run_dir.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=run_dir, prefix=RECORD_FILE, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(record, f)
-    os.replace(tmp, run_dir / RECORD_FILE)  # atomic: an interrupted write leaves no half record
+    write_text_atomic(run_dir / RECORD_FILE, json.dumps(record))  # an interrupted write leaves no half record
 
 
 def finished_record(run: Run, run_dir: Path) -> dict | None:
