@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
-from .neighbors import nearest_indices
+from .neighbors import nearest_index, nearest_indices
 from .geometry import (
     TensorLike,
     _as_exists_mask,
@@ -247,7 +247,7 @@ def nearest_neighbors(
     recomputed exactly from the chosen pairs, so they are differentiable with respect to both sets.
     """
     q, r = _check_point_sets(query, reference, ("query", "reference"), "nearest_neighbors")
-    index, _ = nearest_indices(q, r, _auto_chunk(q.shape[0], r.shape[1], chunk_size))
+    index = nearest_index(q, r, _auto_chunk(q.shape[0], r.shape[1], chunk_size))
     return _gather_sq_dist(q, r, index), index
 
 

@@ -44,7 +44,7 @@ from .metrics import (
     ChamferConvention,
     cuboid_chamfer_distance,
     mean_iou,
-    normal_consistency,
+    normal_consistency_terms,
     number_of_existing_cuboids,
     part_ious,
     segment_box_distance,
@@ -132,11 +132,10 @@ def score_cuboids(
                         "n_samples": convention.n_samples, "convention": convention.describe(),
                         "value": float(values.double().mean())})
     n_samples = conventions[0].n_samples
-    nc = {directions: torch.cat([
-        normal_consistency(points[i:i + 1], normals[i:i + 1], *cuboids(i), n_samples=n_samples,
-                           generator=_shape_generator(seed, i), directions=directions)
-        for i in range(n)
-    ]) for directions in ("points", "both")}
+    terms = [normal_consistency_terms(points[i:i + 1], normals[i:i + 1], *cuboids(i), n_samples=n_samples,
+                                      generator=_shape_generator(seed, i)) for i in range(n)]
+    from_points, from_cuboids = (torch.cat([t[j] for t in terms]) for j in (0, 1))
+    nc = {"points": from_points, "both": 0.5 * (from_points + from_cuboids)}  # normal_consistency's two definitions
     return {
         "n_shapes": n,
         "chamfer": chamfer,

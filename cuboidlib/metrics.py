@@ -30,13 +30,14 @@ from dataclasses import dataclass
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape
-from .distance import nearest_neighbors
+from .neighbors import nearest_index, nearest_indices
 from .geometry import quaternion_to_rotation_matrix, sample_cuboid_surfaces, validate_cuboids
 
 __all__ = [
     "ChamferConvention",
     "cuboid_chamfer_distance",
     "normal_consistency",
+    "normal_consistency_terms",
     "number_of_existing_cuboids",
     "transfer_part_labels",
     "part_ious",
@@ -130,8 +131,7 @@ def cuboid_chamfer_distance(
     points = as_float_tensor(points, "points")
     check_shape(points, ("B", "N", 3), "points")
     samples = _sample_cuboids(points, centers, quaternions, half_sizes, exists, convention.n_samples, generator)
-    _, to_cuboids = nearest_neighbors(points, samples.points)
-    _, to_points = nearest_neighbors(samples.points, points)
+    to_cuboids, to_points = nearest_indices(points, samples.points)  # both directions in one pass
     forward = convention.pair_distance(points, _gather(samples.points, to_cuboids)).mean(dim=1)
     backward = convention.pair_distance(samples.points, _gather(points, to_points)).mean(dim=1)
     total = forward + backward
@@ -171,6 +171,16 @@ def normal_consistency(
     """
     if directions not in ("points", "both"):
         raise ValueError(f"directions must be 'points' or 'both', got {directions!r}")
+    from_points, from_cuboids = normal_consistency_terms(points, normals, centers, quaternions, half_sizes, exists,
+                                                         n_samples, generator, both=directions == "both")
+    return from_points if directions == "points" else 0.5 * (from_points + from_cuboids)
+
+
+def normal_consistency_terms(points, normals, centers, quaternions, half_sizes, exists=None, n_samples: int = 4096,
+                             generator: torch.Generator | None = None, both: bool = True):
+    """The two directions of :func:`normal_consistency` on the same surface samples, (B,) each:
+    (from the points, from the cuboids); the second is None when ``both`` is False. One search for the
+    nearest neighbours serves both, so asking for both costs about as much as asking for one."""
     points = as_float_tensor(points, "points")
     normals = as_float_tensor(normals, "normals").to(points)
     check_shape(points, ("B", "N", 3), "points")
@@ -182,15 +192,15 @@ def normal_consistency(
         raise ValueError(f"normals: {int((length < 1e-12).sum())} have zero length; every point needs a normal "
                          "(estimate them with cuboidlib.normals.estimate_normals)")
     samples = _sample_cuboids(points, centers, quaternions, half_sizes, exists, n_samples, generator)
-    _, nearest = nearest_neighbors(points, samples.points)
-    nearest_normals = _gather(samples.normals, nearest)
+    if both:
+        nearest, back = nearest_indices(points, samples.points)  # back: (B, S), each sample's nearest input point
+    else:
+        nearest, back = nearest_index(points, samples.points), None
     unit = normals / length[..., None]
-    from_points = (unit * nearest_normals).sum(dim=-1).abs().mean(dim=1)
-    if directions == "points":
-        return from_points
-    _, back = nearest_neighbors(samples.points, points)  # (B, S): each sample's nearest input point
-    from_cuboids = (samples.normals * _gather(unit, back)).sum(dim=-1).abs().mean(dim=1)
-    return 0.5 * (from_points + from_cuboids)
+    from_points = (unit * _gather(samples.normals, nearest)).sum(dim=-1).abs().mean(dim=1)
+    if back is None:
+        return from_points, None
+    return from_points, (samples.normals * _gather(unit, back)).sum(dim=-1).abs().mean(dim=1)
 
 
 def number_of_existing_cuboids(exists) -> torch.Tensor:

@@ -8,9 +8,10 @@ two functions here:
 
 - :func:`knn_indices`: the ``k`` nearest points of every point in its own cloud, (B, N, C) -> (B, N, k);
 - :func:`nearest_indices`: for two sets a (B, Na, C) and b (B, Nb, C), the nearest point of b for every
-  point of a and the nearest point of a for every point of b, in one pass.
+  point of a and the nearest point of a for every point of b, in one pass;
+- :func:`nearest_index`: the first half of that alone, the nearest point of b for every point of a.
 
-Both compute squared distances block by block as |x|^2 + |y|^2 - 2 x.y with a matrix product, so
+All compute squared distances block by block as |x|^2 + |y|^2 - 2 x.y with a matrix product, so
 memory stays bounded (about 2^22 distances per block) while the work is O(N^2). That identity loses
 precision when the points lie far from the origin (|x|^2 is large, the difference is small), so both
 functions first move the points so that their mean is at the origin: distances do not change, and a
@@ -27,7 +28,7 @@ import torch
 
 from ._checks import check_shape
 
-__all__ = ["knn_indices", "nearest_indices"]
+__all__ = ["knn_indices", "nearest_index", "nearest_indices"]
 
 # Entries of one distance-matrix block (16 MiB in float32).
 _BLOCK = 1 << 22
@@ -89,11 +90,38 @@ def knn_indices(x: torch.Tensor, k: int, sorted: bool = False) -> torch.Tensor:
     return out.clamp_(max=n - 1)
 
 
+def _chunk(a: torch.Tensor, b: torch.Tensor, chunk: int | None) -> int:
+    return chunk if chunk is not None else max(1, (1 << 24) // max(1, a.shape[0] * b.shape[1]))
+
+
+def _squared_distances(part: torch.Tensor, b: torch.Tensor, b_sq: torch.Tensor) -> torch.Tensor:
+    """(B, n, Nb) squared distances of the points of ``part`` (B, n, C) to b (B, Nb, C); b_sq: (B, 1, Nb)."""
+    return torch.baddbmm(b_sq + part.square().sum(-1)[..., None], part, b.transpose(1, 2), alpha=-2)
+
+
+def nearest_index(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) -> torch.Tensor:
+    """Nearest point of b for every point of a, (B, Na) int64: the first result of :func:`nearest_indices`
+    without the work of the other direction. a (B, Na, C), b (B, Nb, C), both non-empty. Example::
+
+        >>> nearest_index(torch.tensor([[[0.0, 0, 0], [2, 0, 0]]]), torch.tensor([[[1.9, 0, 0], [0.1, 0, 0]]]))
+        tensor([[1, 0]])
+    """
+    check_shape(a, ("B", "Na", "C"), "a")
+    check_shape(b, ("B", "Nb", "C"), "b")
+    chunk = _chunk(a, b, chunk)
+    a, b = _centred(a, b)
+    with torch.no_grad():
+        b_sq = b.square().sum(-1)[:, None, :]
+        return torch.cat([_squared_distances(a[:, start : start + chunk], b, b_sq).argmin(dim=2)
+                          for start in range(0, a.shape[1], chunk)], dim=1)
+
+
 def nearest_indices(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Nearest point of b for every point of a, (B, Na) int64, and of a for every point of b, (B, Nb).
 
     a (B, Na, C), b (B, Nb, C), both non-empty. One pass over chunks of ``chunk`` points of a
-    (default: about 2^24 distances per chunk). Example::
+    (default: about 2^24 distances per chunk). Where several points of a are equally near a point of
+    b, any one of them may be returned. Example::
 
         >>> a = torch.tensor([[[0.0, 0, 0], [2, 0, 0]]]); b = torch.tensor([[[1.9, 0, 0]]])
         >>> nearest_indices(a, b)
@@ -101,8 +129,7 @@ def nearest_indices(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) 
     """
     check_shape(a, ("B", "Na", "C"), "a")
     check_shape(b, ("B", "Nb", "C"), "b")
-    if chunk is None:
-        chunk = max(1, (1 << 24) // max(1, a.shape[0] * b.shape[1]))
+    chunk = _chunk(a, b, chunk)
     a, b = _centred(a, b)
     with torch.no_grad():
         b_sq = b.square().sum(-1)[:, None, :]  # (B, 1, Nb)
@@ -110,10 +137,14 @@ def nearest_indices(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) 
         best_b = torch.full(b.shape[:2], math.inf, dtype=a.dtype, device=a.device)
         b_to_a = torch.zeros(b.shape[:2], dtype=torch.long, device=a.device)
         for start in range(0, a.shape[1], chunk):  # loop over memory-sized chunks, not over points
-            part = a[:, start : start + chunk]
-            d2 = torch.baddbmm(b_sq + part.square().sum(-1)[..., None], part, b.transpose(1, 2), alpha=-2)
+            d2 = _squared_distances(a[:, start : start + chunk], b, b_sq)
             a_to_b[:, start : start + chunk] = d2.argmin(dim=2)
-            value, index = d2.min(dim=1)  # best point of this chunk for every point of b
+            # The best point of this chunk for every point of b. d2.min(dim=1) would give it directly, but a
+            # reduction with indices across rows is several times slower on the CPU than amin; so: the
+            # smallest value, then the (largest) row that holds it, as a float index (exact below 2^24).
+            value = d2.amin(dim=1)
+            rows = torch.arange(d2.shape[1], device=d2.device, dtype=torch.float32)[None, :, None]
+            index = torch.where(d2 == value[:, None, :], rows, -1.0).amax(dim=1).long()
             better = value < best_b
             best_b = torch.where(better, value, best_b)
             b_to_a = torch.where(better, index + start, b_to_a)

@@ -8,6 +8,7 @@ from cuboidlib.metrics import (
     cuboid_chamfer_distance,
     mean_iou,
     normal_consistency,
+    normal_consistency_terms,
     number_of_existing_cuboids,
     part_ious,
     segment_box_distance,
@@ -141,6 +142,13 @@ def test_two_way_normal_consistency_sees_the_inner_faces_of_stacked_slabs():
     one_way = float(normal_consistency(points, normals, centers, quats, halves, **kw))
     two_way = float(normal_consistency(points, normals, centers, quats, halves, directions="both", **kw))
     assert one_way > 0.85 and two_way < one_way - 0.1, (one_way, two_way)
+    from_points, from_cuboids = normal_consistency_terms(points, normals, centers, quats, halves,
+                                                         generator=torch.Generator().manual_seed(1))
+    assert float(from_points) == pytest.approx(one_way, abs=1e-6)  # the same samples, one search for both terms
+    same_samples = normal_consistency(points, normals, centers, quats, halves, directions="both",
+                                      generator=torch.Generator().manual_seed(1))
+    assert float(0.5 * (from_points + from_cuboids)) == pytest.approx(float(same_samples), abs=1e-6)
+    assert float(from_cuboids) < 0.7, "the slabs' inner faces, seen from the cuboids"
     with pytest.raises(ValueError, match="directions must be 'points' or 'both'"):
         normal_consistency(points, normals, *cube, directions="cuboids")
 

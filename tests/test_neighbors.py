@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cuboidlib.distance import chamfer_distance, nearest_neighbors
-from cuboidlib.neighbors import knn_indices, nearest_indices
+from cuboidlib.neighbors import knn_indices, nearest_index, nearest_indices
 from cuboidlib.normals import estimate_normals, normal_errors
 
 
@@ -32,6 +32,14 @@ def test_nearest_indices_match_brute_force_in_both_directions():
     d = _brute_sq(a, b)
     assert torch.equal(a_to_b, d.argmin(2))
     assert torch.equal(b_to_a, d.argmin(1))
+    assert torch.equal(nearest_index(a, b, chunk=16), a_to_b)  # the one-way search is the first half
+
+
+def test_reverse_direction_returns_a_row_that_holds_the_column_minimum_under_ties():
+    a = torch.tensor([[[0.0, 0, 0], [0.0, 0, 0], [5.0, 0, 0]]])  # rows 0 and 1 tie for b's first point
+    b = torch.tensor([[[0.5, 0, 0], [4.0, 0, 0]]])
+    _, b_to_a = nearest_indices(a, b, chunk=2)
+    assert b_to_a[0, 0].item() in (0, 1) and b_to_a[0, 1].item() == 2
 
 
 @pytest.mark.parametrize("offset", [100.0, 1e4])
@@ -85,6 +93,8 @@ def test_nearest_indices_property(n, m, dim, scale, offset, seed):
     # the chosen neighbour is as near as the best one (ties may pick either)
     torch.testing.assert_close(torch.gather(d, 2, a_to_b[..., None])[..., 0], d.amin(2), rtol=1e-9, atol=0)
     torch.testing.assert_close(torch.gather(d, 1, b_to_a[:, None])[:, 0], d.amin(1), rtol=1e-9, atol=0)
+    one_way = nearest_index(a, b)
+    torch.testing.assert_close(torch.gather(d, 2, one_way[..., None])[..., 0], d.amin(2), rtol=1e-9, atol=0)
 
 
 def test_bad_k():
