@@ -100,6 +100,8 @@ __all__ = [
     "compactness_note",
     "Run",
     "nearest_cuboid_segmentation",
+    "flatness",
+    "draw_abstractions",
     "score_network",
     "execute",
     "run_all",
@@ -334,6 +336,16 @@ def nearest_cuboid_segmentation(shapes: ShapeSet, pred: AbstractionBatch, distan
     return d.masked_fill(~pred.cuboids.exists[:, None, :], math.inf).argmin(dim=-1)
 
 
+def flatness(pred: AbstractionBatch) -> float:
+    """How slab-like the existing cuboids are: the smallest of a cuboid's three half sizes over its largest,
+    the median over the existing cuboids of a shape, averaged over shapes (1: cubes; near 0: the thin stacked
+    plates of the paper's Fig. 9)."""
+    sizes = pred.cuboids.half_sizes.sort(dim=-1).values
+    ratio = sizes[..., 0] / sizes[..., 2].clamp_min(1e-12)
+    return float(torch.stack([ratio[i][pred.cuboids.exists[i]].median() if pred.cuboids.exists[i].any()
+                              else ratio.new_tensor(float("nan")) for i in range(len(ratio))]).nanmean())
+
+
 def _metrics(scores: dict) -> dict:
     """The flat numbers of a :func:`score_cuboids` result: cd, nc (from the points), nc_both (both ways), miou, n_ac."""
     return {"cd": scores["chamfer"][0]["value"], "nc": scores["normal_consistency"],
@@ -356,6 +368,7 @@ def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dic
     scores = score_cuboids(test, pred)
     scores.update(num_cuboids=pred.num_segments, shapes_without_existing_cuboid=fallback)
     metrics = _metrics(scores)
+    metrics["flatness"] = flatness(pred)
     if options.get("sigma_n") is not None:
         scores["clean"] = score_cuboids(ShapeSet(clean.points, clean.normals, None, clean.indices), pred)
         metrics.update(cd_clean=scores["clean"]["chamfer"][0]["value"], nc_clean=scores["clean"]["normal_consistency"],
@@ -384,6 +397,44 @@ def _refine_and_score(test: ShapeSet, pred: AbstractionBatch, steps: int) -> dic
     scores.update(num_cuboids=fit.num_segments, refine_steps=steps, refine_seconds=round(fit.elapsed_s, 1),
                   segmentation_kept=float((fit.labels == pred.labels).double().mean()))
     return {"method": "network + refinement", "metrics": _metrics(scores), "scores": scores}
+
+
+def draw_abstractions(records: list[dict], scale: "Scale", stem: Path, row_label: Callable[[dict], str],
+                      title: str, shapes: int = 3) -> list[Path]:
+    """A figure of the trained networks side by side: one row per finished run of the first seed (in the
+    order of ``records``), one column per test shape (the first ``shapes`` of the test split): the points
+    coloured by their segment (the run's own segmentation rule, as scored) and the existing cuboids. Each
+    panel is titled ``row_label(record)`` and that shape's number of cuboids. Writes ``stem``.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cuboidlib.viz import plot_cuboids_matplotlib_grid
+
+    shown = [r for r in records if r["status"] == "ok" and r["key"].get("seed", 0) == scale.seeds[0]]
+    if not shown:
+        return []
+    items, titles = [], []
+    for record in shown:
+        config = TrainConfig.from_dict(record["config"])
+        test, _ = _test_shapes(config, record["options"])
+        test = test.subset(torch.arange(min(shapes, len(test))))
+        model, _ = load_model(record["checkpoint"])
+        pred, _ = predict_cuboids(model, test, centers_from_allocation=config.loss_config.centers_from_allocation)
+        if record["options"].get("segmentation"):
+            pred.labels = nearest_cuboid_segmentation(test, pred, record["options"]["segmentation"])
+        for i in range(len(test)):
+            items.append((test.points[i], pred.labels[i], pred.cuboids, None, i))
+            titles.append(f"{row_label(record)}\n{config.category} {int(test.indices[i])}: {int(pred.cuboids.exists[i].sum())} cuboids")
+    fig = plot_cuboids_matplotlib_grid(items, titles, cols=min(shapes, len(items)), panel_size=2.8,
+                                       max_points=1024, point_size=2.0)
+    fig.suptitle(title + (" (QUICK run: meaningless)" if scale.quick else ""), fontsize=10)
+    path = stem.with_suffix(".png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return [path]
 
 
 def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
