@@ -432,7 +432,7 @@ def draw_abstractions(records: list[dict], scale: "Scale", stem: Path, row_label
     fig.suptitle(title + (" (QUICK run: meaningless)" if scale.quick else ""), fontsize=10)
     path = stem.with_suffix(".png")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=80, bbox_inches="tight")  # "tight": the title above the panels' titles
     plt.close(fig)
     return [path]
 
