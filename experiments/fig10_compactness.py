@@ -4,8 +4,8 @@ The paper's caption, in our words: the same shapes abstracted by networks traine
 the compactness loss, with the number of cuboids beside each; the structure stays consistent within the
 category, and a suitable weight gives concise, accurately structured abstractions.
 
-The runs are Table 5's chair runs of the first seed (``table5_compactness.LAMBDAS``, the averaged
-compactness of the course scale), scored the same way; the figure shows the first three test chairs per
+The runs are Table 5's chair configurations for the first seed (``table5_compactness.LAMBDAS``, the averaged
+compactness) at today's course scale, scored the same way; the figure shows the first three test chairs per
 weight, each titled with its number of cuboids.
 """
 

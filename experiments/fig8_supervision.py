@@ -5,8 +5,8 @@ P2C-Dis (each point goes to its nearest cuboid under Eq. (5)), Chamfer-Dis (the 
 the points and the cuboid surfaces) and P2C-Seg (the paper's segmentation branch). Only P2C-Seg's cuboids
 follow the parts; the nearest-cuboid variants cut the shape wherever the cuboids happen to lie.
 
-The runs are Table 3's chair runs (``table3_supervision.VARIANTS``, lambda_1 = 0 as the paper trains them),
-scored the same way; the figure shows the first three test chairs of each network, the variants without a
+The runs are Table 3's chair configurations (``table3_supervision.VARIANTS``, lambda_1 = 0 as the paper trains
+them) at today's course scale, scored the same way; the figure shows the first three test chairs of each network, the variants without a
 segmentation branch segmented by their nearest existing cuboid, as the paper does.
 """
 

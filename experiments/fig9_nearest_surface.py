@@ -5,7 +5,7 @@ surface, without looking at the normals, the network covers a shape with thin cu
 direction, which reconstruct the points but not the structure. Eq. (5), which pairs each point with the
 face whose normal matches its own, does not.
 
-The runs are Table 4's chair runs without noise (``table4_distance``): the "Distance" column (the
+The runs are Table 4's chair configurations without noise (``table4_distance``) at today's course scale: the "Distance" column (the
 nearest-surface distance) and Eq. (5) with the course's sigma_s = 0.05. Besides Table 4's metrics the
 table reports the flatness of the cuboids (``runner.flatness``: the smallest half size over the largest,
 median over a shape's cuboids; 1 for cubes, near 0 for plates). The figure shows the first three test chairs.

@@ -429,10 +429,11 @@ def draw_abstractions(records: list[dict], scale: "Scale", stem: Path, row_label
             titles.append(f"{row_label(record)}\n{config.category} {int(test.indices[i])}: {int(pred.cuboids.exists[i].sum())} cuboids")
     fig = plot_cuboids_matplotlib_grid(items, titles, cols=min(shapes, len(items)), panel_size=2.8,
                                        max_points=1024, point_size=2.0)
-    fig.suptitle(title + (" (QUICK run: meaningless)" if scale.quick else ""), fontsize=10)
+    fig.suptitle(title + (" (QUICK run: meaningless)" if scale.quick else ""), fontsize=10,
+                 y=1 + 0.3 / fig.get_figheight())  # above the panels' two-line titles; the saved figure grows to fit
     path = stem.with_suffix(".png")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80, bbox_inches="tight")  # "tight": the title above the panels' titles
+    fig.savefig(path, dpi=80, bbox_inches="tight")
     plt.close(fig)
     return [path]
 

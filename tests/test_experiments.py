@@ -22,6 +22,9 @@ ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
 
+import fig8_supervision as fig8  # noqa: E402
+import fig9_nearest_surface as fig9  # noqa: E402
+import fig10_compactness as fig10  # noqa: E402
 import fig11_point_density as fig11  # noqa: E402
 import paper_vs_code  # noqa: E402
 import runner  # noqa: E402
@@ -37,7 +40,7 @@ from cuboidlib.geometry import Cuboids  # noqa: E402
 from cuboidlib.losses import LossConfig  # noqa: E402
 from cuboidlib.train import TrainConfig  # noqa: E402
 
-SCRIPTS = (table3, table4, table5, table6, fig11, table12, paper_vs_code)
+SCRIPTS = (table3, table4, table5, table6, fig8, fig9, fig10, fig11, table12, paper_vs_code)
 
 
 pytestmark = pytest.mark.usefixtures("cache_dir", "restore_threads")
@@ -262,6 +265,40 @@ def test_fig11_trains_with_three_densities_scored_against_the_densest():
     _, runs = _runs(fig11)
     assert [r.config.n_points for r in runs] == [256, 1024, 4096]
     assert all(r.options["reference_points"] == 4096 and r.config.category == "chair" for r in runs)
+
+
+def test_figs_8_to_10_train_their_tables_configurations():
+    _, t3 = _runs(table3, "--categories", "chair")
+    _, t4 = _runs(table4)
+    _, t5 = _runs(table5)
+    _, f8 = _runs(fig8)
+    _, f9 = _runs(fig9)
+    _, f10 = _runs(fig10)
+    configs = lambda runs: [(r.name, r.config.to_dict(), r.options) for r in runs]  # noqa: E731
+    assert configs(f8) == configs(t3), "Fig. 8: Table 3's chair runs"
+    assert configs(f9) == configs([r for r in t4 if r.key["sigma_n"] == 0.0 and r.key["distance"] == "Distance"]
+                                  + [r for r in t4 if r.key["sigma_n"] == 0.0 and r.key["sigma_s"] == 0.05])
+    assert configs(f10) == configs([r for r in t5 if r.key["seed"] == 0]), "Fig. 10: Table 5's first seed"
+
+
+def test_flatness_is_the_median_smallest_over_largest_half_size():
+    half_sizes = torch.tensor([[[0.5, 0.5, 0.5], [0.01, 0.5, 0.4], [0.1, 0.2, 0.4]],
+                               [[0.2, 0.2, 0.02], [0.3, 0.3, 0.3], [0.3, 0.3, 0.3]]])
+    exists = torch.tensor([[True, True, True], [True, False, False]])
+    cuboids = Cuboids(torch.zeros(2, 3, 3), torch.tensor([1.0, 0, 0, 0]).expand(2, 3, 4), half_sizes, exists)
+    pred = AbstractionBatch(cuboids, torch.zeros(2, 4, dtype=torch.long))
+    # shape 0: ratios 1, 0.02, 0.25 -> median 0.25; shape 1: only the plate, 0.1
+    assert runner.flatness(pred) == pytest.approx((0.25 + 0.1) / 2)
+
+
+def test_fig9_quick_draws_both_distances(tmp_path):
+    code = runner.main(fig9.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
+                                         str(tmp_path / "runs")])
+    assert code == 0
+    data = json.loads((tmp_path / "fig9_nearest_surface_quick.json").read_text())
+    assert [r["key"]["distance"] for r in data["runs"]] == ["Distance", "Normal"]
+    assert all(0 < r["results"][0]["metrics"]["flatness"] <= 1 for r in data["runs"])
+    assert (tmp_path / "fig9_nearest_surface_quick.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_tables_1_2_compare_three_methods_on_four_categories():
