@@ -118,6 +118,11 @@ def _add_train_command(sub) -> None:
                    help="any other field, VALUE in JSON, e.g. --set loss.lambda_compact=0.2 --set model.k=16")
     p.add_argument("--print-config", action="store_true", help="print the resulting config and exit")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no messages")
+    p.add_argument("--finetune", metavar="FILE",
+                   help="then a second stage in the same command: train FILE's config (TrainConfig fields, as "
+                   "--config) from OUT/best.pt into OUT/finetune; the flags and --set apply to the first stage; "
+                   "--release releases the second; --resume continues the stage that was interrupted. The "
+                   "committed networks: --config configs/<category>.json --finetune configs/finetune/<category>.json")
     p.add_argument("--release", metavar="FILE.pt",
                    help="after training, copy best.pt (weights and config only) to FILE.pt, score it on the test "
                    "split with the baseline and write the card FILE.json (command, config, training time, metrics)")
@@ -191,9 +196,13 @@ def _check_writable_file(path: str, suffix: str, option: str) -> None:
 
 
 def _cmd_train(args) -> int:
-    from .train import Trainer, TrainingDiverged
+    import os
+    from pathlib import Path
+
+    from .train import Trainer, TrainConfig, TrainingDiverged, train_then_finetune
 
     config = _train_config_from_args(args)
+    finetune = TrainConfig.load_json(args.finetune) if args.finetune else None
     if args.release:
         _check_writable_file(args.release, ".pt", "--release")
     if args.print_config:
@@ -201,22 +210,26 @@ def _cmd_train(args) -> int:
 
         print(json.dumps(config.to_dict(), indent=2))
         return 0
+    is_main = int(os.environ.get("RANK", "0")) == 0
     try:
-        trainer = Trainer(config, args.out, resume=args.resume, quiet=args.quiet)
-        result = trainer.run()
+        if finetune is None:
+            results = [Trainer(config, args.out, resume=args.resume, quiet=args.quiet).run()]
+        else:
+            results = train_then_finetune(config, finetune, args.out, resume=args.resume, quiet=args.quiet)
     except TrainingDiverged as exc:
         print(f"cuboidlib train: {exc}", file=sys.stderr)
         return 3
-    if not args.quiet and trainer.dist.is_main:
-        print(f"{result.stopped}: step {result.step} (epoch {result.epoch}); best validation loss "
-              f"{result.best_val:.5f} at step {result.best_step}; files in {result.out_dir}")
-    if args.release and trainer.dist.is_main:
+    for result in results:
+        if result is not None and not args.quiet and is_main:
+            print(f"{result.stopped}: step {result.step} (epoch {result.epoch}); best validation loss "
+                  f"{result.best_val:.5f} at step {result.best_step}; files in {result.out_dir}")
+    if args.release and is_main:
         import shlex
 
         from .release import card_path, publish_run
 
         command = shlex.join(["cuboidlib", *(args.argv if args.argv is not None else sys.argv[1:])])
-        card = publish_run(args.out, args.release, command)
+        card = publish_run(results[-1].out_dir, args.release, command)
         if not args.quiet:
             print(card["test"]["table"])
             print(f"released {args.release} and {card_path(args.release)}")

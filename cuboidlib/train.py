@@ -4,7 +4,8 @@ The paper trains each category separately with Adam, learning rate 6e-4 and batc
 epochs (Sec. 3.4.5); those are the defaults of :class:`TrainConfig`, which also holds the data, the
 model (:class:`~cuboidlib.model.ModelConfig`) and the loss (:class:`~cuboidlib.losses.LossConfig`)
 and round-trips through JSON. :class:`Trainer` runs the loop and the ``cuboidlib train`` command
-wraps it.
+wraps it; :func:`train_then_finetune` runs the committed networks' two stages in one call
+(``cuboidlib train --finetune``).
 
 **Data** (:mod:`cuboidlib.dataset`). A procedural collection (:func:`cuboidlib.shapes.make_collection`)
 or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
@@ -69,6 +70,8 @@ __all__ = [
     "TrainingDiverged",
     "TrainResult",
     "Trainer",
+    "train_then_finetune",
+    "FINETUNE_DIR",
     "LOSS_TERMS",
     "DIAGNOSTICS",
     "VALIDATION_SCORES",
@@ -712,3 +715,39 @@ class Trainer:
                        f"best validation loss {self.best_val:.5f} at step {self.best_step}")
         return TrainResult(self.step, self.step // self.steps_per_epoch, stopped, self.best_val, self.best_step,
                            self.elapsed + seconds, self.last_terms, str(self.out_dir))
+
+
+#: The folder, inside a two-stage run's folder, of its second stage (:func:`train_then_finetune`).
+FINETUNE_DIR = "finetune"
+
+
+def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str | os.PathLike,
+                        resume: bool = False, quiet: bool = False) -> tuple[TrainResult | None, TrainResult]:
+    """The committed networks' recipe in one call: train ``config`` in ``out_dir``, then train ``finetune``
+    from the first stage's ``best.pt`` in ``out_dir/finetune``.
+
+    ``finetune.init_from`` is replaced by ``out_dir/best.pt``. Under ``torchrun`` both stages share one
+    process group. ``resume``: continue the second stage if it has begun (the first is then done and
+    skipped, its result None), else resume the first and run the second.
+    Returns the two stages' :class:`TrainResult` (the released network is the second stage's ``best.pt``).
+
+    Example::
+
+        first = TrainConfig.load_json("data_samples/checkpoints/configs/chair.json")
+        second = TrainConfig.load_json("data_samples/checkpoints/configs/finetune/chair.json")
+        train_then_finetune(first, second, "runs/chair")   # runs/chair/finetune/best.pt
+    """
+    out_dir = Path(out_dir)
+    second_dir = out_dir / FINETUNE_DIR
+    second = finetune.replace(init_from=str(out_dir / "best.pt"))
+    group = _Distributed()
+    group.start(resolve_device(config.device))  # the Trainers below then find it and leave it open
+    try:
+        first_result = None
+        second_begun = resume and (second_dir / "last.pt").is_file()
+        if not second_begun:
+            first_result = Trainer(config, out_dir, resume=resume, quiet=quiet).run()
+        second_result = Trainer(second, second_dir, resume=second_begun, quiet=quiet).run()
+    finally:
+        group.stop()
+    return first_result, second_result

@@ -509,6 +509,35 @@ def test_card_of_a_two_stage_recipe_holds_both_stages(tmp_path, tiny, capsys):
     assert card["config"]["init_from"] == earlier["checkpoint"] and card["training"]["steps"] == 2
 
 
+def test_finetune_runs_both_stages_in_one_command_as_two_commands_would(tmp_path, tiny):
+    from cuboidlib.release import read_card
+    from cuboidlib.train import FINETUNE_DIR
+
+    config, _ = tiny
+    first = config.replace(max_steps=3).save_json(tmp_path / "first.json")
+    second = config.replace(max_steps=2, lr_schedule="cosine", model={"affinity_temperature": 5},
+                            init_from="elsewhere/best.pt").save_json(tmp_path / "second.json")
+    # two commands: the second stage told where the first one's weights are
+    assert main(["train", "--config", str(first), "--out", str(tmp_path / "a"), "--quiet"]) == 0
+    assert main(["train", "--config", str(second), "--out", str(tmp_path / "b"), "--quiet",
+                 "--set", f"init_from={json.dumps(str(tmp_path / 'a' / 'best.pt'))}"]) == 0
+    # one command
+    dest = tmp_path / "chair.pt"
+    assert main(["train", "--config", str(first), "--finetune", str(second), "--out", str(tmp_path / "one"), "--quiet",
+                 "--release", str(dest)]) == 0
+    _assert_same_state(_weights(tmp_path / "a" / "best.pt"), _weights(tmp_path / "one" / "best.pt"))
+    _assert_same_state(_weights(tmp_path / "b" / "best.pt"), _weights(tmp_path / "one" / FINETUNE_DIR / "best.pt"))
+    card = read_card(dest)
+    assert card["initialised_from"]["checkpoint"] == str(tmp_path / "one" / "best.pt")
+    assert card["initialised_from"]["training"]["steps"] == 3 and card["training"]["steps"] == 2
+    assert card["config"]["model"]["affinity_temperature"] == 5
+    # --resume after the second stage has begun continues it and leaves the first alone
+    first_log = (tmp_path / "one" / "log.csv").read_text()
+    assert main(["train", "--config", str(first), "--finetune", str(second), "--out", str(tmp_path / "one"), "--quiet",
+                 "--resume"]) == 0
+    assert (tmp_path / "one" / "log.csv").read_text() == first_log
+
+
 def test_release_of_a_centroid_network_fits_its_translation_head(tmp_path, tiny):
     from cuboidlib.release import read_card, translation_head_error
 
