@@ -228,7 +228,9 @@ def _cmd_train(args) -> int:
 
         from .release import card_path, publish_run
 
-        command = shlex.join(["cuboidlib", *(args.argv if args.argv is not None else sys.argv[1:])])
+        processes = int(os.environ.get("WORLD_SIZE", "1"))
+        launcher = ["torchrun", f"--nproc_per_node={processes}", "-m", "cuboidlib"] if processes > 1 else ["cuboidlib"]
+        command = shlex.join([*launcher, *(args.argv if args.argv is not None else sys.argv[1:])])
         card = publish_run(results[-1].out_dir, args.release, command)
         if not args.quiet:
             print(card["test"]["table"])

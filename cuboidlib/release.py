@@ -7,7 +7,7 @@ k-means + oriented-box baseline at the same number of boxes (:mod:`cuboidlib.eva
 writes a JSON card beside it (``chair.json``) holding
 
 * ``command``: the command that trained and published it, ``git_commit`` of the source tree;
-* ``machine``: CPU count, torch threads, torch version, device;
+* ``machine``: CPU count, training processes (DDP world size), torch threads per process, torch version, device;
 * ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run, and the
   validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
   saturation at every validation), with its values at 15, 30 and 60 minutes;
@@ -242,7 +242,8 @@ def publish_run(
         "checkpoint": dest.name,
         "command": command,
         "git_commit": git_commit(),
-        "machine": {"cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+        "machine": {"cpus": os.cpu_count(), "processes": state.get("world_size", 1),
+                    "torch_threads": torch.get_num_threads(),
                     "torch": torch.__version__, "python": platform.python_version(),
                     "device": config.device},
         "training": training,
@@ -270,7 +271,8 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
 def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     """A Markdown table of released checkpoints, one row per card, for README files.
 
-    Columns: category, M, training (steps, minutes; "a + b" for a network trained in two stages), the
+    Columns: category, M, training (steps, minutes; "a + b" for a network trained in two stages; the
+    number of training processes), the
     network's test Chamfer distance (x 1000,
     convention of the first one in the card), normal consistency, mIoU (%), N_AC, and the same for the
     baseline at the same number of boxes.
@@ -286,9 +288,11 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
         stages.append(card["training"])
         steps = " + ".join(str(t["steps"]) for t in stages)
         minutes = " + ".join(f"{t['seconds'] / 60:.1f}" for t in stages)
+        processes = card["machine"].get("processes", 1)
         rows.append(
             f"| `{card['checkpoint']}` | {card['config']['model']['num_cuboids']} "
-            f"| {steps} steps, {minutes} min | {card['test']['n_shapes']} "
+            f"| {steps} steps, {minutes} min, {processes} process{'es' if processes > 1 else ''} "
+            f"| {card['test']['n_shapes']} "
             f"| {cd[0]:.2f} / {cd[1]:.2f} | {network['normal_consistency']:.3f} / {baseline['normal_consistency']:.3f} "
             f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} |"
         )

@@ -455,6 +455,36 @@ def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, c
         Trainer(TrainConfig.load_json(cfg), out, resume=True, quiet=True)
 
 
+def test_both_stages_in_one_torchrun_command_share_the_processes_and_the_card_says_so(tmp_path, tiny):
+    # `torchrun --nproc_per_node=2 -m cuboidlib train --config ... --finetune ... --release ...`, by its variables
+    from cuboidlib.release import read_card
+
+    config, _ = tiny
+    first = config.replace(max_steps=2).save_json(tmp_path / "first.json")
+    second = config.replace(max_steps=2, lr_schedule="cosine").save_json(tmp_path / "second.json")
+    out, dest = tmp_path / "run", tmp_path / "chair.pt"
+    argv = ["train", "--config", str(first), "--finetune", str(second), "--out", str(out), "--quiet",
+            "--release", str(dest)]
+    port = str(_free_port())
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "cuboidlib", *argv],
+            env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
+                 "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        )
+        for r in (0, 1)
+    ]
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err.decode()[-3000:]
+    assert load_checkpoint(out / "last.pt")["world_size"] == load_checkpoint(out / "finetune" / "last.pt")["world_size"] == 2
+    card = read_card(dest)
+    assert card["machine"]["processes"] == 2
+    assert card["command"].startswith("torchrun --nproc_per_node=2 -m cuboidlib train --config ")
+    assert card["initialised_from"]["training"]["steps"] == 2 and card["training"]["steps"] == 2
+
+
 # -------------------------------------------------------------------------------------- release
 
 
@@ -531,6 +561,7 @@ def test_finetune_runs_both_stages_in_one_command_as_two_commands_would(tmp_path
     assert card["initialised_from"]["checkpoint"] == str(tmp_path / "one" / "best.pt")
     assert card["initialised_from"]["training"]["steps"] == 3 and card["training"]["steps"] == 2
     assert card["config"]["model"]["affinity_temperature"] == 5
+    assert card["machine"]["processes"] == 1 and card["command"].startswith("cuboidlib train --config")
     # --resume after the second stage has begun continues it and leaves the first alone
     first_log = (tmp_path / "one" / "log.csv").read_text()
     assert main(["train", "--config", str(first), "--finetune", str(second), "--out", str(tmp_path / "one"), "--quiet",
