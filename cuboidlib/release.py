@@ -7,7 +7,8 @@ k-means + oriented-box baseline at the same number of boxes (:mod:`cuboidlib.eva
 writes a JSON card beside it (``chair.json``) holding
 
 * ``command``: the command that trained and published it, ``git_commit`` of the source tree;
-* ``machine``: CPU count, training processes (DDP world size), torch threads per process, torch version, device;
+* ``machine``: CPU count, training processes (DDP world size), torch threads per process (the
+  config's ``num_threads``, else the publishing process's), torch version, device;
 * ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run, and the
   validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
   saturation at every validation), with its values at 15, 30 and 60 minutes;
@@ -243,7 +244,7 @@ def publish_run(
         "command": command,
         "git_commit": git_commit(),
         "machine": {"cpus": os.cpu_count(), "processes": state.get("world_size", 1),
-                    "torch_threads": torch.get_num_threads(),
+                    "torch_threads": config.num_threads or torch.get_num_threads(),
                     "torch": torch.__version__, "python": platform.python_version(),
                     "device": config.device},
         "training": training,
