@@ -34,19 +34,22 @@ CATEGORIES = ("chair", "table", "airplane", "animal")
 def draw(checkpoints: Path) -> plt.Figure:
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     for i, category in enumerate(CATEGORIES):
-        curve, _, starts = training_curve(read_card(checkpoints / f"{category}.pt"))
+        card = read_card(checkpoints / f"{category}.pt")
+        curve, _, starts = training_curve(card)
         curve = [e for e in curve if "miou" in e]
         minutes = [e["seconds"] / 60 for e in curve]
         color = f"C{i}"
-        axes[0].plot(minutes, [100 * e["miou"] for e in curve], "-", color=color, label=category)
-        axes[1].plot(minutes, [e["n_ac"] for e in curve], "-", color=color, label=category)
+        processes = card["machine"].get("processes", 1)
+        label = f"{category} ({processes} process{'es' if processes > 1 else ''})"
+        axes[0].plot(minutes, [100 * e["miou"] for e in curve], "-", color=color, label=label)
+        axes[1].plot(minutes, [e["n_ac"] for e in curve], "-", color=color, label=label)
         for ax in axes:  # where the second stage (falling learning rate) starts
             for start in starts:
                 ax.axvline(start / 60, color=color, lw=0.8, ls="--")
     for ax, label in zip(axes, ("validation mIoU (%)", "cuboids per shape (N_AC)")):
         for mark in CURVE_MARKS:
             ax.axvline(mark, color="grey", lw=0.6, ls=":")
-        ax.set(xlabel="training time (minutes, one thread)", ylabel=label)
+        ax.set(xlabel="training time (wall-clock minutes; one thread per process)", ylabel=label)
         ax.grid(alpha=0.3)
     axes[0].legend()
     fig.suptitle("Committed networks: validation scores over their training (from the checkpoint cards)")
