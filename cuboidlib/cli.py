@@ -196,10 +196,7 @@ def _check_writable_file(path: str, suffix: str, option: str) -> None:
 
 
 def _cmd_train(args) -> int:
-    import os
-    from pathlib import Path
-
-    from .train import Trainer, TrainConfig, TrainingDiverged, train_then_finetune
+    from .train import Trainer, TrainConfig, TrainingDiverged, _Distributed, train_then_finetune
 
     config = _train_config_from_args(args)
     finetune = TrainConfig.load_json(args.finetune) if args.finetune else None
@@ -210,7 +207,7 @@ def _cmd_train(args) -> int:
 
         print(json.dumps(config.to_dict(), indent=2))
         return 0
-    is_main = int(os.environ.get("RANK", "0")) == 0
+    processes = _Distributed()  # this process's rank and the number of processes (torchrun's variables)
     try:
         if finetune is None:
             results = [Trainer(config, args.out, resume=args.resume, quiet=args.quiet).run()]
@@ -220,16 +217,16 @@ def _cmd_train(args) -> int:
         print(f"cuboidlib train: {exc}", file=sys.stderr)
         return 3
     for result in results:
-        if result is not None and not args.quiet and is_main:
+        if result is not None and not args.quiet and processes.is_main:
             print(f"{result.stopped}: step {result.step} (epoch {result.epoch}); best validation loss "
                   f"{result.best_val:.5f} at step {result.best_step}; files in {result.out_dir}")
-    if args.release and is_main:
+    if args.release and processes.is_main:
         import shlex
 
         from .release import card_path, publish_run
 
-        processes = int(os.environ.get("WORLD_SIZE", "1"))
-        launcher = ["torchrun", f"--nproc_per_node={processes}", "-m", "cuboidlib"] if processes > 1 else ["cuboidlib"]
+        n = processes.world_size
+        launcher = ["torchrun", f"--nproc_per_node={n}", "-m", "cuboidlib"] if n > 1 else ["cuboidlib"]
         command = shlex.join([*launcher, *(args.argv if args.argv is not None else sys.argv[1:])])
         card = publish_run(results[-1].out_dir, args.release, command)
         if not args.quiet:

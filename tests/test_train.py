@@ -418,6 +418,23 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _run_two_ranks(command):
+    """Run ``command`` as ranks 0 and 1 of a two-process group (the variables torchrun sets); both must succeed."""
+    port = str(_free_port())
+    procs = [
+        subprocess.Popen(
+            command,
+            env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
+                 "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        )
+        for r in (0, 1)
+    ]
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err.decode()[-3000:]
+
+
 @pytest.mark.parametrize("centroids", [False, True], ids=["predicted centres", "centroid centres"])
 def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, centroids):
     # Two processes started with the variables torchrun sets (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR/PORT);
@@ -429,19 +446,7 @@ def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, c
     (tmp_path / "ddp.py").write_text(DDP_SCRIPT)
     out = tmp_path / "run"
     out.mkdir()
-    port = str(_free_port())
-    procs = [
-        subprocess.Popen(
-            [sys.executable, str(tmp_path / "ddp.py"), str(cfg), str(out)],
-            env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
-                 "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        )
-        for r in (0, 1)
-    ]
-    for p in procs:
-        _, err = p.communicate(timeout=300)
-        assert p.returncode == 0, err.decode()[-3000:]
+    _run_two_ranks([sys.executable, str(tmp_path / "ddp.py"), str(cfg), str(out)])
     r0, r1 = (torch.load(out / f"rank{r}.pt", weights_only=True) for r in (0, 1))
     assert (r0["rank"], r1["rank"], r0["world"], r0["step"]) == (0, 1, 2, 4)
     _assert_same_state(r0["params"], r1["params"])
@@ -465,19 +470,7 @@ def test_both_stages_in_one_torchrun_command_share_the_processes_and_the_card_sa
     out, dest = tmp_path / "run", tmp_path / "chair.pt"
     argv = ["train", "--config", str(first), "--finetune", str(second), "--out", str(out), "--quiet",
             "--release", str(dest)]
-    port = str(_free_port())
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-m", "cuboidlib", *argv],
-            env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
-                 "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        )
-        for r in (0, 1)
-    ]
-    for p in procs:
-        _, err = p.communicate(timeout=300)
-        assert p.returncode == 0, err.decode()[-3000:]
+    _run_two_ranks([sys.executable, "-m", "cuboidlib", *argv])
     assert load_checkpoint(out / "last.pt")["world_size"] == load_checkpoint(out / "finetune" / "last.pt")["world_size"] == 2
     card = read_card(dest)
     assert card["machine"]["processes"] == 2
