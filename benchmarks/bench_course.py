@@ -3,6 +3,10 @@
 Each notebook in notebooks/ (the lessons and the optional appendix 04b; not the solutions) is executed from a fresh Python kernel (nbclient, the engine of
 ``jupyter nbconvert --execute``) in its own folder, as the learner opens it. The committed files
 are not touched: the executed copies are discarded. Prints each lesson's wall time, then the total.
+Lesson 04 leaves its training run in ``notebooks/runs/lesson04_chair/`` and the appendix 04b reads it back,
+as for a learner who runs the lessons in order; a ``notebooks/runs/`` left by an earlier execution would
+make lesson 04 read its run back too, so the benchmark refuses to start while it exists (move it away, or
+time a second pass with ``--reuse-runs``).
 
 Example::
 
@@ -28,7 +32,13 @@ def main() -> None:
     parser.add_argument("--lessons", nargs="+", metavar="PREFIX",
                         help="only the notebooks whose names start with these prefixes (default: all)")
     parser.add_argument("--timeout", type=int, default=900, help="seconds allowed per cell (default 900)")
+    parser.add_argument("--reuse-runs", action="store_true",
+                        help="time the course with the training runs an earlier execution left in notebooks/runs/")
     args = parser.parse_args()
+    runs = NOTEBOOKS / "runs"
+    if runs.exists() and not args.reuse_runs:
+        raise SystemExit(f"{runs} holds the training runs of an earlier execution, which the lessons would read back "
+                         "instead of training; move it away to time a first pass, or pass --reuse-runs")
     paths = sorted(NOTEBOOKS.glob("[0-9][0-9]*_*.ipynb"))  # the lessons and the appendix 04b, not solutions/
     if args.lessons:
         paths = [p for p in paths if p.name.startswith(tuple(args.lessons))]

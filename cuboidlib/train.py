@@ -5,7 +5,8 @@ epochs (Sec. 3.4.5); those are the defaults of :class:`TrainConfig`, which also 
 model (:class:`~cuboidlib.model.ModelConfig`) and the loss (:class:`~cuboidlib.losses.LossConfig`)
 and round-trips through JSON. :class:`Trainer` runs the loop and the ``cuboidlib train`` command
 wraps it; :func:`train_then_finetune` runs the committed networks' two stages in one call
-(``cuboidlib train --finetune``).
+(``cuboidlib train --finetune``), and :func:`train_with_snapshots` keeps the weights of a run at chosen
+steps (the lessons look inside a run that way).
 
 **Data** (:mod:`cuboidlib.dataset`). A procedural collection (:func:`cuboidlib.shapes.make_collection`)
 or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
@@ -71,6 +72,7 @@ __all__ = [
     "TrainResult",
     "Trainer",
     "train_then_finetune",
+    "train_with_snapshots",
     "FINETUNE_DIR",
     "LOSS_TERMS",
     "DIAGNOSTICS",
@@ -751,3 +753,62 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
     finally:
         group.stop()
     return first_result, second_result
+
+
+def train_with_snapshots(config: TrainConfig, out_dir: str | os.PathLike, stops: tuple[int, ...] | list[int],
+                         splits: dict[str, ShapeSet] | None = None,
+                         quiet: bool = True) -> tuple[TrainResult | None, dict[int, dict[str, torch.Tensor]]]:
+    """Train ``config`` for ``stops[-1]`` steps in ``out_dir``, keeping the weights at step 0 and at each stop.
+
+    The run stops at every step of ``stops`` and is resumed from there (a resumed run continues exactly where it
+    stopped, so these are the weights of one uninterrupted run); the weights of each stop are written to
+    ``out_dir/snapshot_<step>.pt`` (a checkpoint, loaded with ``weights_only``). A second call with the same
+    configuration reuses the folder: a finished run is read back without training, an interrupted one
+    continues. A folder that holds a run of another configuration is refused, never overwritten.
+
+    config: the run (``max_steps`` is replaced by ``stops[-1]``; ``max_minutes`` must be None, since a time
+    budget could stop the run between two stops, and the learning rate constant); stops: increasing step counts; splits: as for :class:`Trainer`.
+    Returns ``(result, snapshots)``: the :class:`TrainResult` of the last piece trained (None when nothing was
+    left to train) and ``{step: state_dict}`` for step 0 and every stop.
+
+    Example::
+
+        config = course_config("chair", n_shapes=128, n_points=512, max_minutes=None)
+        result, snapshots = train_with_snapshots(config, "runs/lesson", stops=(100, 200, 400))
+        sorted(snapshots)   # [0, 100, 200, 400]
+    """
+    stops = list(stops)
+    if not stops:
+        raise ValueError("stops is empty: give the steps at which to keep the weights, e.g. (100, 200, 400)")
+    for stop in stops:
+        _check_int(stop, "every step of stops", 1)
+    if any(b <= a for a, b in zip(stops, stops[1:])):
+        raise ValueError(f"stops must increase, got {stops}")
+    if config.max_minutes is not None:
+        raise ValueError(f"max_minutes is {config.max_minutes}: a time budget could stop the run between two stops; "
+                         "use max_minutes=None (the stops are the budget)")
+    if config.lr_schedule != "constant":
+        raise ValueError(f"lr_schedule {config.lr_schedule!r} depends on the length of the run, which changes at "
+                         "every stop; train_with_snapshots needs the constant schedule")
+    final = config.replace(max_steps=stops[-1])
+    out_dir = Path(out_dir)
+    stored_path = out_dir / "config.json"
+    if stored_path.is_file() and TrainConfig.load_json(stored_path).run_defining() != final.run_defining():
+        raise FileExistsError(f"{out_dir} holds a run of another configuration; choose another folder "
+                              "(or delete it to train this one there)")
+
+    def snapshot(step: int) -> Path:
+        return out_dir / f"snapshot_{step}.pt"
+
+    result = None
+    for stop in stops:
+        if snapshot(stop).is_file():
+            continue
+        splits = splits if splits is not None else load_splits(final)
+        resume = (out_dir / "last.pt").is_file()
+        trainer = Trainer(final.replace(max_steps=stop), out_dir, resume=resume, quiet=quiet, splits=splits)
+        if not resume:
+            save_checkpoint(snapshot(0), final.to_dict(), trainer.model.state_dict(), step=0)
+        result = trainer.run()
+        save_checkpoint(snapshot(stop), final.to_dict(), trainer.model.state_dict(), step=stop)
+    return result, {step: load_checkpoint(snapshot(step))["model"] for step in (0, *stops)}

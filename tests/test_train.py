@@ -259,6 +259,55 @@ def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
         Trainer(config.replace(init_from=str(tmp_path / "missing.pt")), tmp_path / "fourth", quiet=True, splits=splits)
 
 
+def test_snapshots_are_the_weights_of_one_uninterrupted_run_and_a_second_call_reuses_them(tmp_path, tiny, monkeypatch):
+    config, splits = tiny
+    result, snaps = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
+    assert sorted(snaps) == [0, 3, 6, 9] and result.step == 9
+    fresh = Trainer(config.replace(max_steps=3), tmp_path / "three", quiet=True, splits=splits)
+    _assert_same_state(snaps[0], fresh.model.state_dict())  # step 0: the initial weights
+    fresh.run()
+    _assert_same_state(snaps[3], _weights(tmp_path / "three" / "last.pt"))
+    Trainer(config, tmp_path / "full", quiet=True, splits=splits).run()
+    _assert_same_state(snaps[9], _weights(tmp_path / "full" / "last.pt"))
+    assert not torch.equal(snaps[3]["segmentation.point_proj.weight"], snaps[9]["segmentation.point_proj.weight"])
+
+    def no_training(self):
+        raise AssertionError("a finished run must be read back, not trained again")
+
+    monkeypatch.setattr(Trainer, "run", no_training)
+    again, read_back = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
+    assert again is None
+    for step in snaps:
+        _assert_same_state(snaps[step], read_back[step])
+
+
+def test_snapshots_continue_an_interrupted_run_and_refuse_another_configuration(tmp_path, tiny):
+    config, splits = tiny
+    train_module.train_with_snapshots(config, tmp_path / "s", (3, 6), splits=splits)  # as if stopped after 6
+    result, snaps = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
+    assert result.step == 9
+    Trainer(config, tmp_path / "full", quiet=True, splits=splits).run()
+    _assert_same_state(snaps[9], _weights(tmp_path / "full" / "last.pt"))
+    before = sorted(p.name for p in (tmp_path / "s").iterdir())
+    with pytest.raises(FileExistsError, match="holds a run of another configuration"):
+        train_module.train_with_snapshots(config.replace(lr=1e-3), tmp_path / "s", (3, 6, 9), splits=splits)
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == before
+
+
+@pytest.mark.parametrize("stops, change, match", [
+    ((), {}, "stops is empty"),
+    ((3, 3), {}, "stops must increase"),
+    ((0, 3), {}, "every step of stops must be an integer >= 1"),
+    ((3,), {"max_minutes": 1.0}, "max_minutes is 1.0"),
+    ((3,), {"lr_schedule": "cosine", "lr_final": 1e-5}, "needs the constant schedule"),
+])
+def test_snapshots_refuse_bad_stops_and_time_budgets(tmp_path, tiny, stops, change, match):
+    config, splits = tiny
+    with pytest.raises(ValueError, match=match):
+        train_module.train_with_snapshots(config.replace(**change), tmp_path, stops, splits=splits)
+    assert not any(tmp_path.iterdir())
+
+
 def test_a_run_folder_is_never_overwritten_by_accident(tmp_path, tiny):
     config, splits = tiny
     with pytest.raises(FileNotFoundError, match="nothing to resume"):
