@@ -46,6 +46,7 @@ files are in :mod:`summaries`, the data, noise and recipes in the library.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import multiprocessing
@@ -449,9 +450,45 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
     return [{"method": options.get("method", "per-shape fitting"), "metrics": _metrics(scores), "scores": scores}]
 
 
-def execute(run: Run, run_dir: str | os.PathLike) -> dict:
+def training_key(run: Run) -> str:
+    """What a "train" run's weights depend on, as a short hash: its configuration and its input noise.
+
+    Two runs with the same key train the same network (training is deterministic), so one training serves
+    both; they may still differ in how they are scored (``options``)."""
+    identity = json.dumps([run.config.to_dict(), run.options.get("sigma_n") or 0.0], sort_keys=True)
+    return hashlib.sha256(identity.encode()).hexdigest()[:16]
+
+
+#: The folder of the trainings, one per :func:`training_key`: inside the invocation's folder, or with ``--resume``
+#: directly in ``--runs-dir``, shared by every script.
+TRAINED_DIR = "trained"
+#: Each finished training leaves its summary here, in its training folder, so that it is never repeated.
+TRAINING_FILE = "training.json"
+
+
+def _train(run: Run, train_dir: Path) -> dict:
+    """Train ``run`` in ``train_dir``, or read back the training finished there earlier; its summary."""
+    done = train_dir / TRAINING_FILE
+    if done.is_file():
+        return {**json.loads(done.read_text()), "reused": True}
+    splits = load_splits(run.config)
+    if run.options.get("sigma_n"):
+        splits = noisy_splits(splits, run.options["sigma_n"], run.config.data_seed)
+    # an interrupted earlier attempt continues from its last checkpoint; the trainer refuses it if the
+    # configuration differs
+    resume = (train_dir / "last.pt").is_file()
+    trained = Trainer(run.config, train_dir, quiet=True, splits=splits, resume=resume).run()
+    summary = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
+               "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1), "trained_by": run.name}
+    write_text_atomic(done, json.dumps(summary))
+    return summary
+
+
+def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike | None = None) -> dict:
     """Do one :class:`Run` in this process with one torch thread; return its record (JSON types).
 
+    A "train" run trains in ``trained_dir / training_key(run)`` when ``trained_dir`` is given (a training
+    finished there by any run with the same key is read back, not repeated), else in ``run_dir``.
     Never raises for a failing run: the record then has ``status`` "failed" and the ``error``.
     """
     start, cpu_start = time.perf_counter(), time.process_time()
@@ -464,16 +501,9 @@ def execute(run: Run, run_dir: str | os.PathLike) -> dict:
             record["results"] = _fit_and_score(run.config, run.options)
         else:
             if run.task == "train":
-                splits = load_splits(run.config)
-                if run.options.get("sigma_n"):
-                    splits = noisy_splits(splits, run.options["sigma_n"], run.config.data_seed)
-                # an interrupted earlier attempt (--resume) continues from its last checkpoint; the trainer
-                # refuses it if the configuration differs
-                resume = (Path(run_dir) / "last.pt").is_file()
-                trained = Trainer(run.config, run_dir, quiet=True, splits=splits, resume=resume).run()
-                record["training"] = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
-                                      "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1)}
-                checkpoint = Path(run_dir) / "best.pt"
+                train_dir = Path(trained_dir) / training_key(run) if trained_dir is not None else Path(run_dir)
+                record["training"] = _train(run, train_dir)
+                checkpoint = train_dir / "best.pt"
             else:
                 checkpoint = Path(run.options["checkpoint"])
             record["checkpoint"] = str(checkpoint)
@@ -564,9 +594,13 @@ def estimate_makespan(runs: Sequence[Run], jobs: int) -> float:
 
 
 def run_all(runs: Sequence[Run], runs_dir: str | os.PathLike, jobs: int = 2,
-            report: Callable[[str], None] = print) -> list[dict]:
+            report: Callable[[str], None] = print, trained_dir: str | os.PathLike | None = None) -> list[dict]:
     """Do every run, ``jobs`` at a time in separate processes (``jobs = 1``: in this process), longest
-    first; returns the records in the order of ``runs``. ``report`` gets one line per finished run."""
+    first; returns the records in the order of ``runs``. ``report`` gets one line per finished run.
+
+    ``trained_dir``: the trainings go there, one folder per :func:`training_key`, and a training finished
+    there earlier is read back. Runs that share a key then train once: the first of them trains, the
+    others wait for it and only score."""
     names = [r.name for r in runs]
     if len(set(names)) != len(names):
         raise ValueError("run names must be unique")
@@ -584,17 +618,40 @@ def run_all(runs: Sequence[Run], runs_dir: str | os.PathLike, jobs: int = 2,
             earlier["reused"] = True
             done(i, earlier)
     order = sorted((i for i in range(len(runs)) if records[i] is None), key=lambda i: -estimate_seconds(runs[i]))
+    waves: list[list[int]] = [order]
+    if trained_dir is not None:  # a training shared by several runs: its first run trains, the others wait
+        first: dict[str, int] = {}
+        for i in order:
+            if runs[i].task == "train":
+                first.setdefault(_key(runs[i]), i)
+        waves = [[i for i in order if first.get(_key(runs[i]), i) == i],
+                 [i for i in order if first.get(_key(runs[i]), i) != i]]
 
     if jobs == 1:
-        for i in order:
-            done(i, execute(runs[i], runs_dir / runs[i].name))
+        for wave in waves:
+            for i in wave:
+                done(i, execute(runs[i], runs_dir / runs[i].name, trained_dir))
         return records
     # Children inherit these before importing torch: one OpenMP / MKL thread each.
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
     context = multiprocessing.get_context("spawn")  # no fork of a process whose torch threads are running
+    for wave in waves:
+        _run_wave(runs, wave, runs_dir, jobs, trained_dir, context, done)
+    return records
+
+
+def _key(run: Run) -> str | None:
+    return training_key(run) if run.task == "train" else None
+
+
+def _run_wave(runs: Sequence[Run], wave: list[int], runs_dir: Path, jobs: int, trained_dir, context,
+              done: Callable[[int, dict], None]) -> None:
+    """The runs ``wave`` (indices into ``runs``), ``jobs`` at a time in worker processes."""
+    if not wave:
+        return
     with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-        futures = {pool.submit(execute, runs[i], runs_dir / runs[i].name): i for i in order}
+        futures = {pool.submit(execute, runs[i], runs_dir / runs[i].name, trained_dir): i for i in wave}
         for future in as_completed(futures):
             i = futures[future]
             try:
@@ -604,7 +661,6 @@ def run_all(runs: Sequence[Run], runs_dir: str | os.PathLike, jobs: int = 2,
                           "config": runs[i].config.to_dict(), "status": "failed",
                           "error": f"worker process failed: {type(exc).__name__}: {exc}"}
             done(i, record)
-    return records
 
 
 def _describe(record: dict) -> str:
@@ -709,7 +765,8 @@ class Experiment:
         p.add_argument("--resume", action="store_true",
                        help="continue the newest earlier invocation in --runs-dir: runs it finished (same configuration) "
                             "are read back, not trained again, so an interrupted full run loses at most the runs in "
-                            "progress")
+                            "progress; and every training that any script finished in --runs-dir/trained with the same "
+                            "configuration is read back (the scripts share the runs they have in common)")
         p.add_argument("--plan", action="store_true", help="print the runs and the estimated time, run nothing")
         if self.add_arguments is not None:
             self.add_arguments(p)
@@ -801,9 +858,11 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
             print(f"resuming {runs_dir}: {reused} of {len(runs)} runs already finished")
         else:
             print(f"--resume: no earlier invocation in {Path(args.runs_dir) / experiment.name}; starting a new one")
+    # --resume: every training finished in --runs-dir (by any script) with the same configuration is read back
+    trained_dir = Path(args.runs_dir) / TRAINED_DIR if args.resume else runs_dir / TRAINED_DIR
     info = machine()
     start = time.perf_counter()
-    records = run_all(runs, runs_dir, args.jobs)
+    records = run_all(runs, runs_dir, args.jobs, trained_dir=trained_dir)
     wall = time.perf_counter() - start
     summary, table = experiment.report(records, scale, args)
     first = runs[0].config
@@ -833,7 +892,9 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
         "settings": {"quick": scale.quick, "steps": scale.steps, "shapes": scale.n_shapes, "seeds": list(scale.seeds),
                      "batch_size": first.batch_size,
                      "jobs": args.jobs, "runs_dir": str(runs_dir),
-                     "reused_runs": sum(bool(r.get("reused")) for r in records)},
+                     "reused_runs": sum(bool(r.get("reused")) for r in records),
+                     "reused_trainings": sum(bool(r.get("training", {}).get("reused")) for r in records
+                                             if not r.get("reused"))},
         "course_scale": COURSE_SCALE,
         "paper": experiment.paper,
         "summary": summary,

@@ -403,6 +403,28 @@ def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, ca
     assert third["settings"]["reused_runs"] == 0
 
 
+def test_runs_that_share_a_training_train_once_within_an_invocation_and_across_scripts(tmp_path):
+    scale = runner.Scale(True, 2, 12, (0,))
+    config = scale.config("chair")
+    runs = [runner.Run("a", {"seed": 0}, config), runner.Run("b", {"seed": 0}, config, options={"baseline": True}),
+            runner.Run("noisy", {"seed": 0}, config, options={"sigma_n": 0.01})]
+    assert runner.training_key(runs[0]) == runner.training_key(runs[1]) != runner.training_key(runs[2])
+    records = runner.run_all(runs, tmp_path / "first", jobs=1, report=lambda line: None,
+                             trained_dir=tmp_path / "trained")
+    assert [r["status"] for r in records] == ["ok"] * 3
+    assert sorted(p.name for p in (tmp_path / "trained").iterdir()) == sorted(
+        {runner.training_key(r) for r in runs})  # two trainings for three runs
+    assert records[0]["checkpoint"] == records[1]["checkpoint"]
+    assert not records[0]["training"].get("reused") and records[1]["training"]["reused"]
+    assert [r["method"] for r in records[1]["results"]] == ["network", "k-means boxes"]  # scored its own way
+    assert records[0]["results"][0]["metrics"] == records[1]["results"][0]["metrics"]
+    # another script (another runs folder) with the same store reads both trainings back
+    again = runner.run_all(runs[:1] + runs[2:], tmp_path / "second", jobs=1, report=lambda line: None,
+                           trained_dir=tmp_path / "trained")
+    assert all(r["training"]["reused"] for r in again)
+    assert again[0]["results"] == records[0]["results"]
+
+
 def test_a_failing_run_is_recorded_and_the_others_go_on(tmp_path):
     scale = runner.Scale(True, 2, 12, (0,))
     good = runner.Run("good", {"seed": 0}, scale.config("chair"))
