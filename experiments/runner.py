@@ -61,6 +61,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Sequence
 
+try:
+    import fcntl  # POSIX file locks; without them (Windows) scripts sharing trainings must not run side by side
+except ImportError:  # pragma: no cover
+    fcntl = None
+
 import torch
 
 from cuboidlib._files import write_text_atomic
@@ -467,7 +472,18 @@ TRAINING_FILE = "training.json"
 
 
 def _train(run: Run, train_dir: Path) -> dict:
-    """Train ``run`` in ``train_dir``, or read back the training finished there earlier; its summary."""
+    """Train ``run`` in ``train_dir``, or read back the training finished there earlier; its summary.
+
+    A lock file keeps two processes (two scripts run side by side) from training in one folder at once: the
+    second waits, then reads the first one's training back."""
+    train_dir.mkdir(parents=True, exist_ok=True)
+    with open(train_dir / ".lock", "w") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        return _train_locked(run, train_dir)
+
+
+def _train_locked(run: Run, train_dir: Path) -> dict:
     done = train_dir / TRAINING_FILE
     if done.is_file():
         return {**json.loads(done.read_text()), "reused": True}
