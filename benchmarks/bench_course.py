@@ -6,7 +6,8 @@ are not touched: the executed copies are discarded. Prints each lesson's wall ti
 Lesson 04 leaves its training run in ``notebooks/runs/lesson04_chair/`` and the appendix 04b reads it back,
 as for a learner who runs the lessons in order; a ``notebooks/runs/`` left by an earlier execution would
 make lesson 04 read its run back too, so the benchmark refuses to start while it exists (move it away, or
-time a second pass with ``--reuse-runs``).
+time a second pass with ``--reuse-runs``). The procedural shapes are generated into a fresh, temporary cache
+(``CUBOIDLIB_CACHE``), as on a first pass; ``--warm-cache`` uses your cache instead.
 
 Example::
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -34,6 +36,8 @@ def main() -> None:
     parser.add_argument("--timeout", type=int, default=900, help="seconds allowed per cell (default 900)")
     parser.add_argument("--reuse-runs", action="store_true",
                         help="time the course with the training runs an earlier execution left in notebooks/runs/")
+    parser.add_argument("--warm-cache", action="store_true",
+                        help="use your shape cache (CUBOIDLIB_CACHE or ~/.cache/cuboidlib) instead of an empty one")
     args = parser.parse_args()
     runs = NOTEBOOKS / "runs"
     if runs.exists() and not args.reuse_runs:
@@ -44,8 +48,12 @@ def main() -> None:
         paths = [p for p in paths if p.name.startswith(tuple(args.lessons))]
     if not paths:
         raise SystemExit(f"no lesson matches {args.lessons} in {NOTEBOOKS}")
+    cache = None if args.warm_cache else tempfile.TemporaryDirectory(prefix="bench_course_cache_")
+    if cache is not None:
+        os.environ["CUBOIDLIB_CACHE"] = cache.name  # the kernels inherit it
     print(f"{len(paths)} lessons, each from a fresh kernel; {os.cpu_count()} CPUs; "
-          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}")
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}; shape cache "
+          f"{'yours' if cache is None else 'empty at the start'}")
     total = 0.0
     for path in paths:
         nb = nbformat.read(path, as_version=4)
