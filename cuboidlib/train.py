@@ -132,6 +132,11 @@ class TrainConfig(ConfigDict):
         continue training with another schedule), ``batch_size`` shapes per step (paper: 32, the
         global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
         ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time.
+    Allocation warm-up (a change of the course's recipe, not the paper's): ``temperature_start`` T_0 >= 1
+        and ``temperature_steps`` S: the affinity of Eq. (2) is divided by a temperature that falls
+        geometrically from T_0 at step 0 to the model's ``affinity_temperature`` at step S and stays
+        there (:meth:`Trainer.affinity_temperature`), so the allocation is soft while the cuboids find
+        their parts; ``best.pt`` is only chosen from step S on. S = 0 (default): no warm-up.
     Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
         order, loss and VAE sampling), ``device`` ("auto" = CUDA when available, else CPU),
         ``num_threads`` (``torch.set_num_threads``; None leaves torch's default).
@@ -149,6 +154,8 @@ class TrainConfig(ConfigDict):
     lr: float = 6e-4
     lr_schedule: str = "constant"
     lr_final: float = 0.0
+    temperature_start: float = 1.0
+    temperature_steps: int = 0
     init_from: str | None = None
     batch_size: int = 32
     epochs: int = 1000
@@ -196,6 +203,11 @@ class TrainConfig(ConfigDict):
         if not (isinstance(self.lr_final, (int, float)) and 0 <= self.lr_final <= self.lr):
             raise ValueError(f"TrainConfig.lr_final must be a number between 0 and lr ({self.lr}), got {self.lr_final!r}")
         self.lr_final = float(self.lr_final)
+        t0 = self.temperature_start
+        if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not 1.0 <= t0 <= 100.0:
+            raise ValueError(f"TrainConfig.temperature_start must be a number in [1, 100], got {t0!r}")
+        self.temperature_start = float(t0)
+        _check_int(self.temperature_steps, "TrainConfig.temperature_steps", minimum=0)
         if self.init_from is not None:
             self.init_from = str(self.init_from)
         if self.max_minutes is not None:
@@ -493,6 +505,14 @@ class Trainer:
         progress = min(step / (self.total_steps - 1), 1.0)
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
+    def affinity_temperature(self, step: int) -> float:
+        """The temperature of optimiser step ``step`` (0-based): T_0 (T / T_0)^(step / S) during the warm-up
+        of S = ``temperature_steps`` steps, then the model's T (``model.affinity_temperature``)."""
+        final, config = self.config.model_config.affinity_temperature, self.config
+        if step >= config.temperature_steps:
+            return final
+        return config.temperature_start * (final / config.temperature_start) ** (step / config.temperature_steps)
+
     def _restore(self, state: dict) -> None:
         missing = [k for k in ("optimizer", "step", "rng", "best_val", "elapsed_seconds") if k not in state]
         if missing:
@@ -594,6 +614,7 @@ class Trainer:
         any process has used up its time budget."""
         points = self.train_set.points[index]
         normals = self.train_set.normals[index]
+        self.model.segmentation.temperature = self.affinity_temperature(self.step)
         out = self.net(points, generator=self.latent_generator)
         bad_outputs = [k for k in _OUTPUTS if not bool(torch.isfinite(getattr(out, k).detach()).all())]
         if bad_outputs:  # the loss would refuse them; all ranks learn of it through the NaN values
@@ -642,16 +663,22 @@ class Trainer:
         return {k: scores[k] for k in VALIDATION_SCORES}
 
     def _validate(self, seconds: float) -> None:
-        """Validation loss on the validation split (rank 0); keep ``best.pt`` at its minimum."""
+        """Validation loss on the validation split (rank 0); keep ``best.pt`` at its minimum (from the end of
+        the temperature warm-up on)."""
         if not self.dist.is_main:
             return
+        self.model.segmentation.temperature = self.affinity_temperature(self.step)
         values = validation_loss(self.model, self.val_set, self.loss_config, self.config.batch_size,
                                  derive_seed(self.config.seed, _VALIDATION))
         scores = self._validation_scores()
         self._log("val", {**values, **scores}, seconds)
         if not math.isfinite(values["total"]):
             raise TrainingDiverged(self.step, ["validation loss"], values, self._last_saved)
-        improved = self.best_val is None or values["total"] < self.best_val
+        warm_up = self.config.temperature_steps
+        if self.step < warm_up:  # during the warm-up best.pt follows the latest weights
+            improved = True
+        else:
+            improved = self.best_val is None or self.best_step < warm_up or values["total"] < self.best_val
         if improved:
             self.best_val, self.best_step = values["total"], self.step
             save_checkpoint(self.out_dir / "best.pt", self.config.to_dict(), self.model.state_dict(),

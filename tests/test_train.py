@@ -85,6 +85,8 @@ def test_partial_config_file_fills_in_defaults(tmp_path):
         ({"learning_rate": 1e-3}, "unknown TrainConfig key"),
         ({"lr_schedule": "step"}, "lr_schedule must be one of"),
         ({"lr_final": 1.0}, "lr_final must be a number between 0 and lr"),
+        ({"temperature_start": 0.5}, "temperature_start must be a number in"),
+        ({"temperature_steps": -1}, "temperature_steps must be an integer >= 0"),
     ],
 )
 def test_bad_config_values_are_refused(change, match):
@@ -243,6 +245,28 @@ def test_cosine_schedule_goes_from_lr_to_lr_final_and_resumes_exactly(tmp_path, 
     with pytest.raises(ValueError, match="resume it with the same epochs / max_steps"):
         Trainer(config.replace(max_steps=4), tmp_path / "full", resume=True, quiet=True, splits=splits)
     assert Trainer(config.replace(lr_schedule="constant"), tmp_path / "c", quiet=True, splits=splits).learning_rate(7) == 1e-3
+
+
+def test_temperature_warm_up_falls_geometrically_and_best_is_chosen_after_it(tmp_path, tiny, monkeypatch):
+    config, splits = tiny
+    config = config.replace(temperature_start=8.0, temperature_steps=6, model={"affinity_temperature": 2.0})
+    trainer = Trainer(config, tmp_path, quiet=True, splits=splits)
+    temps = [trainer.affinity_temperature(step) for step in range(9)]
+    assert temps[0] == pytest.approx(8.0) and temps[3] == pytest.approx(4.0)  # the geometric mean of 8 and 2
+    assert temps[6:] == [2.0, 2.0, 2.0] and all(a > b for a, b in zip(temps[:7], temps[1:7]))
+    seen = []  # the temperature every forward pass of the run used
+    forward = type(trainer.model.segmentation).forward
+    monkeypatch.setattr(type(trainer.model.segmentation), "forward",
+                        lambda self, *a: (seen.append(self.temperature), forward(self, *a))[1])
+    monkeypatch.setattr("cuboidlib.train.validation_loss", lambda *a, **k: {"total": 1.0, "reconstruction": 1.0})
+    monkeypatch.setattr(Trainer, "_validation_scores", lambda self: {})
+    result = trainer.run()
+    assert seen[:4] == pytest.approx(temps[:4])  # steps 0-3 (validation at step 4 comes after step 3)
+    assert seen[-1] == 2.0
+    # the validation loss is constant: best.pt follows the warm-up to step 4, then the first validation after it
+    assert result.best_step == 8 and load_checkpoint(tmp_path / "best.pt")["best_step"] == 8
+    assert Trainer(config.replace(temperature_steps=0), tmp_path / "none", quiet=True,
+                   splits=splits).affinity_temperature(0) == 2.0
 
 
 def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
