@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
 
+import airplane_engines  # noqa: E402
 import fig8_supervision as fig8  # noqa: E402
 import fig9_nearest_surface as fig9  # noqa: E402
 import fig10_compactness as fig10  # noqa: E402
@@ -511,3 +512,22 @@ def test_training_curves_are_drawn_from_the_cards(tmp_path, capsys):
         assert marks, f"{category}: the card reaches no 15-minute mark"
         for minutes, entry in marks.items():
             assert f"{minutes} min: mIoU {100 * entry['miou']:.1f} %" in line
+
+
+def test_airplane_engines_moves_the_engine_points_of_mixed_slots_to_free_ones():
+    # one shape, 6 points, 3 slots: slot 0 holds two wing points and two engine points, slot 1 one engine
+    # point alone, slot 2 is unused
+    points = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, -1, 0], [0, -1, 2], [5, 5, 5], [6, 6, 6]])
+    parts = torch.tensor([1, 1, 3, 3, 3, 0])
+    labels = torch.tensor([[0, 0, 0, 0, 1, 1]])
+    cuboids = Cuboids(torch.zeros(1, 3, 3), torch.tensor([[[1.0, 0, 0, 0]] * 3]), torch.ones(1, 3, 3),
+                      torch.tensor([[True, True, False]]))
+    start, moved = airplane_engines.split_start(AbstractionBatch(cuboids, labels), points, parts, engine=3,
+                                                min_points=2)
+    assert moved == 2 and start.labels.tolist() == [[0, 0, 2, 2, 1, 1]]
+    assert start.cuboids.exists.tolist() == [[True, True, True]]
+    torch.testing.assert_close(start.cuboids.centers[0, 2], torch.tensor([0.0, -1, 1]))
+    torch.testing.assert_close(start.cuboids.half_sizes[0, 2], torch.tensor([1e-3, 1e-3, 1.0]))
+    assert labels.tolist() == [[0, 0, 0, 0, 1, 1]]  # the network's solution is left as it was
+    counts = airplane_engines.composition(labels, parts[None], 3, 4)
+    assert counts.tolist() == [[0, 2, 0, 2], [1, 0, 0, 1], [0, 0, 0, 0]]
