@@ -518,7 +518,7 @@ class Trainer:
         if missing:
             raise ValueError(f"{self.out_dir / 'last.pt'} holds no training state (missing {missing}); "
                              "only a last.pt written by the trainer can be resumed")
-        stored = state["config"]
+        stored = TrainConfig.from_dict(state["config"]).to_dict()  # fields added since then take their defaults
         check_config_matches(stored["model"], self.config.model, "model config")
         stored_run = {k: v for k, v in stored.items() if k not in RESUMABLE_CHANGES}
         check_config_matches(stored_run, self.config.run_defining(), "training config")

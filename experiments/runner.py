@@ -455,12 +455,21 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
     return [{"method": options.get("method", "per-shape fitting"), "metrics": _metrics(scores), "scores": scores}]
 
 
+#: TrainConfig fields added after trainings were first shared; left out of :func:`training_key` at these values,
+#: so that the trainings made before them keep their keys.
+KEY_NEUTRAL_DEFAULTS = {"temperature_start": 1.0, "temperature_steps": 0}
+
+
 def training_key(run: Run) -> str:
     """What a "train" run's weights depend on, as a short hash: its configuration and its input noise.
 
     Two runs with the same key train the same network (training is deterministic), so one training serves
     both; they may still differ in how they are scored (``options``)."""
-    identity = json.dumps([run.config.to_dict(), run.options.get("sigma_n") or 0.0], sort_keys=True)
+    config = run.config.to_dict()
+    for name, default in KEY_NEUTRAL_DEFAULTS.items():  # fields added later: at their default, the old key
+        if config.get(name) == default:
+            config.pop(name)
+    identity = json.dumps([config, run.options.get("sigma_n") or 0.0], sort_keys=True)
     return hashlib.sha256(identity.encode()).hexdigest()[:16]
 
 

@@ -7,6 +7,7 @@ sibling ``runner``; the tests import them the same way, with ``experiments/`` on
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
@@ -402,6 +403,17 @@ def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, ca
     assert runner.main(_tiny_experiment(), changed) == 0
     third = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
     assert third["settings"]["reused_runs"] == 0
+
+
+def test_a_training_key_ignores_fields_added_later_while_they_keep_their_defaults():
+    config = runner.Scale(True, 2, 12, (0,)).config("chair")
+    run = runner.Run("a", {"seed": 0}, config)
+    legacy = {k: v for k, v in config.to_dict().items() if k not in runner.KEY_NEUTRAL_DEFAULTS}
+    # the key of the same configuration written before those fields existed
+    expected = hashlib.sha256(json.dumps([legacy, 0.0], sort_keys=True).encode()).hexdigest()[:16]
+    assert runner.training_key(run) == expected
+    warm = runner.Run("b", {"seed": 0}, config.replace(temperature_start=5.0, temperature_steps=10))
+    assert runner.training_key(warm) != expected
 
 
 def test_runs_that_share_a_training_train_once_within_an_invocation_and_across_scripts(tmp_path):

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import cuboidlib.train as train_module
-from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, load_model
+from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, load_model, save_checkpoint
 from cuboidlib.cli import main
 from cuboidlib.losses import LossConfig
 from cuboidlib.model import ModelConfig
@@ -210,6 +210,19 @@ def test_resume_gives_bitwise_the_same_weights_as_an_uninterrupted_run(tmp_path,
     rows = {name: without_seconds(name) for name in ("full", "cut")}
     assert [r for r in rows["full"] if r[2] != "val"] == [r for r in rows["cut"] if r[2] != "val"]
     assert [r for r in rows["cut"] if r[2] == "val" and r[0] != "5"] == [r for r in rows["full"] if r[2] == "val"]
+
+
+def test_a_run_saved_before_a_config_field_existed_resumes_with_its_default(tmp_path, tiny):
+    config, splits = tiny
+    Trainer(config.replace(max_steps=3), tmp_path, quiet=True, splits=splits).run()
+    state = load_checkpoint(tmp_path / "last.pt")
+    old = {k: v for k, v in state["config"].items() if k not in ("temperature_start", "temperature_steps")}
+    extra = {k: v for k, v in state.items() if k not in ("config", "model")}
+    save_checkpoint(tmp_path / "last.pt", old, state["model"], **extra)
+    resumed = Trainer(config, tmp_path, resume=True, quiet=True, splits=splits)
+    assert resumed.step == 3 and resumed.run().step == 9
+    with pytest.raises(CheckpointMismatch, match="temperature_steps"):
+        Trainer(config.replace(temperature_steps=2), tmp_path, resume=True, quiet=True, splits=splits)
 
 
 def test_a_different_seed_gives_different_weights(tmp_path, tiny):
