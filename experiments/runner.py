@@ -455,9 +455,9 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
     return [{"method": options.get("method", "per-shape fitting"), "metrics": _metrics(scores), "scores": scores}]
 
 
-#: TrainConfig fields added after trainings were first shared; left out of :func:`training_key` at these values,
-#: so that the trainings made before them keep their keys.
-KEY_NEUTRAL_DEFAULTS = {"temperature_start": 1.0, "temperature_steps": 0}
+#: TrainConfig fields added after trainings were first shared; left out of :func:`training_key` while they keep
+#: their defaults, so that the trainings made before them keep their keys.
+KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps")
 
 
 def training_key(run: Run) -> str:
@@ -465,10 +465,8 @@ def training_key(run: Run) -> str:
 
     Two runs with the same key train the same network (training is deterministic), so one training serves
     both; they may still differ in how they are scored (``options``)."""
-    config = run.config.to_dict()
-    for name, default in KEY_NEUTRAL_DEFAULTS.items():  # fields added later: at their default, the old key
-        if config.get(name) == default:
-            config.pop(name)
+    config, defaults = run.config.to_dict(), TrainConfig().to_dict()
+    config = {k: v for k, v in config.items() if k not in KEY_NEUTRAL_FIELDS or v != defaults[k]}
     identity = json.dumps([config, run.options.get("sigma_n") or 0.0], sort_keys=True)
     return hashlib.sha256(identity.encode()).hexdigest()[:16]
 

@@ -408,7 +408,7 @@ def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, ca
 def test_a_training_key_ignores_fields_added_later_while_they_keep_their_defaults():
     config = runner.Scale(True, 2, 12, (0,)).config("chair")
     run = runner.Run("a", {"seed": 0}, config)
-    legacy = {k: v for k, v in config.to_dict().items() if k not in runner.KEY_NEUTRAL_DEFAULTS}
+    legacy = {k: v for k, v in config.to_dict().items() if k not in runner.KEY_NEUTRAL_FIELDS}
     # the key of the same configuration written before those fields existed
     expected = hashlib.sha256(json.dumps([legacy, 0.0], sort_keys=True).encode()).hexdigest()[:16]
     assert runner.training_key(run) == expected
