@@ -143,7 +143,7 @@ COURSE_SCALE = {
     "optimiser": "Adam, lr 2e-3 (the paper: 6e-4, too slow for minutes of training), batch 8 (the checkpoints: "
                  "16; the paper: 32), one torch thread per run",
     "loss": "paper weights (lambda_2 0.01, lambda_3 6e-6, sigma_s 0.05) with the compactness loss in the averaged "
-            "form of the authors' code, (mean_m sqrt(w_m + 0.01))^2 = Eq. (6) / M^2, and lambda_1 = 0.02 (0.005 for "
+            "form of the authors' code, (mean_m sqrt(w_m + 0.01))^2 = Eq. (6) / M^2, and lambda_1 = 0.02 (0.001 for "
             "airplanes); the "
             "existence target of the authors' code, more than 24 points allocated (8 for animals, whose tails hold "
             "about 26 points; the paper's 5 % of the points would rule out every chair leg, about 4 % each); cuboid centres at the allocation-weighted centroid of "
