@@ -460,14 +460,19 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
 KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps")
 
 
+def _without_neutral_defaults(config: dict) -> dict:
+    """A config dict without the :data:`KEY_NEUTRAL_FIELDS` that are absent or at their defaults."""
+    defaults = TrainConfig().to_dict()
+    return {k: v for k, v in config.items() if k not in KEY_NEUTRAL_FIELDS or v != defaults[k]}
+
+
 def training_key(run: Run) -> str:
     """What a "train" run's weights depend on, as a short hash: its configuration and its input noise.
 
     Two runs with the same key train the same network (training is deterministic), so one training serves
     both; they may still differ in how they are scored (``options``)."""
-    config, defaults = run.config.to_dict(), TrainConfig().to_dict()
-    config = {k: v for k, v in config.items() if k not in KEY_NEUTRAL_FIELDS or v != defaults[k]}
-    identity = json.dumps([config, run.options.get("sigma_n") or 0.0], sort_keys=True)
+    identity = json.dumps([_without_neutral_defaults(run.config.to_dict()), run.options.get("sigma_n") or 0.0],
+                          sort_keys=True)
     return hashlib.sha256(identity.encode()).hexdigest()[:16]
 
 
@@ -554,13 +559,14 @@ def _write_record(run_dir: Path, record: dict) -> None:
 
 def finished_record(run: Run, run_dir: Path) -> dict | None:
     """The record a finished earlier attempt of ``run`` left in ``run_dir``, or None (none, failed, or made
-    with another configuration or options)."""
+    with another configuration or options; a record made before a :data:`KEY_NEUTRAL_FIELDS` field existed
+    matches a run that keeps it at its default)."""
     try:
         record = json.loads((run_dir / RECORD_FILE).read_text())
     except (OSError, ValueError):
         return None
     same = (record.get("status") == "ok" and record.get("name") == run.name and record.get("task") == run.task
-            and record.get("config") == run.config.to_dict()
+            and _without_neutral_defaults(record.get("config") or {}) == _without_neutral_defaults(run.config.to_dict())
             and json.loads(json.dumps(run.options)) == record.get("options"))
     return record if same else None
 

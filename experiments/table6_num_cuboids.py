@@ -59,9 +59,10 @@ def report(records: list[dict], scale: runner.Scale, args: argparse.Namespace) -
 
 
 def notes(scale: runner.Scale, args: argparse.Namespace) -> list[str]:
-    lam = scale.config("chair").loss_config.lambda_compact
-    return [f"lambda_1 = {lam:g} on the averaged compactness for every M: its effective weight on Eq. (6) is "
-            f"{lam:g} / M^2, so a larger M also means a weaker push towards few cuboids."]
+    lams = {c: scale.config(c).loss_config.lambda_compact for c in args.categories}
+    each = ", ".join(f"{lam:g} ({c})" for c, lam in lams.items())
+    return [f"lambda_1 on the averaged compactness, the same for every M: {each}. Its effective weight on Eq. (6) "
+            "is lambda_1 / M^2, so a larger M also means a weaker push towards few cuboids."]
 
 
 EXPERIMENT = runner.Experiment(

@@ -416,6 +416,17 @@ def test_a_training_key_ignores_fields_added_later_while_they_keep_their_default
     assert runner.training_key(warm) != expected
 
 
+def test_a_record_written_before_fields_were_added_is_still_a_finished_run(tmp_path):
+    config = runner.Scale(True, 2, 12, (0,)).config("chair")
+    run = runner.Run("a", {"seed": 0}, config)
+    legacy = {k: v for k, v in config.to_dict().items() if k not in runner.KEY_NEUTRAL_FIELDS}
+    record = {"status": "ok", "name": "a", "task": run.task, "config": legacy, "options": {}}
+    (tmp_path / runner.RECORD_FILE).write_text(json.dumps(record))
+    assert runner.finished_record(run, tmp_path) == record
+    warm = runner.Run("a", {"seed": 0}, config.replace(temperature_start=5.0, temperature_steps=10))
+    assert runner.finished_record(warm, tmp_path) is None, "a field away from its default is another configuration"
+
+
 def test_runs_that_share_a_training_train_once_within_an_invocation_and_across_scripts(tmp_path):
     scale = runner.Scale(True, 2, 12, (0,))
     config = scale.config("chair")
