@@ -92,7 +92,8 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
         config = TrainConfig.from_dict(record["config"])
         test = load_splits(config)["test"]
         model, _ = load_model(record["checkpoint"])
-        out = abstract_shapes(model, test.points[args.shape:args.shape + 1])
+        out = abstract_shapes(model, test.points[args.shape:args.shape + 1],  # cuboids where the losses put them
+                              centers_from_allocation=config.loss_config.centers_from_allocation)
         points, labels, index = test.points[args.shape], out.labels[0], int(test.indices[args.shape])
         used = int(out.cuboids.exists[0].sum())
         for row, boxes in enumerate((True, False)):

@@ -459,10 +459,21 @@ def test_a_failing_run_is_recorded_and_the_others_go_on(tmp_path):
     assert "no.pt" in records[0]["error"] and any("FAILED" in line for line in lines)
 
 
-def test_fig11_quick_writes_the_figure(tmp_path):
+def test_fig11_quick_writes_the_figure(tmp_path, monkeypatch):
+    import cuboidlib.applications as applications
+
+    drawn = []  # the figure places the cuboids as the training losses did (the runs' centroid centres)
+
+    def spy(*args, **kwargs):
+        drawn.append(kwargs.get("centers_from_allocation"))
+        return real(*args, **kwargs)
+
+    real = applications.abstract_shapes
+    monkeypatch.setattr(applications, "abstract_shapes", spy)
     code = runner.main(fig11.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
                                           str(tmp_path / "runs")])
     assert code == 0
+    assert drawn == [True, True, True]
     data = json.loads((tmp_path / "fig11_point_density_quick.json").read_text())
     assert [r["key"]["points"] for r in data["runs"]] == [32, 128, 512]
     assert all(r["results"][0]["metrics"]["cd_reference"] > 0 for r in data["runs"])
