@@ -41,7 +41,7 @@ from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
 from .dataset import load_splits
-from .train import TrainConfig
+from .train import SELECTIONS, TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
            "publish_run", "read_card", "cards_markdown", "training_curve", "curve_marks"]
@@ -71,7 +71,7 @@ def git_commit(folder: str | os.PathLike | None = None) -> str | None:
 CURVE_MARKS = (15, 30, 60)
 
 
-def _training_summary(run_dir: Path, selected_step: int | None) -> dict:
+def _training_summary(run_dir: Path, selected_step: int | None, selection: str = "validation_loss") -> dict:
     """Steps and wall-clock seconds of a run and its validation curve, from its ``log.csv``.
 
     ``validation``: one entry per validation row (step, seconds, loss, N_AC, mIoU, box distance,
@@ -93,7 +93,7 @@ def _training_summary(run_dir: Path, selected_step: int | None) -> dict:
     if last is None:
         raise ValueError(f"{run_dir / 'log.csv'}: no training step logged")
     seconds = round(float(last["seconds"]), 1)
-    return {"steps": int(last["step"]), "selected_step": selected_step, "selection": "lowest validation loss",
+    return {"steps": int(last["step"]), "selected_step": selected_step, "selection": SELECTIONS[selection],
             "seconds": seconds, "validation": curve, "at_minutes": curve_marks(curve, seconds)}
 
 
@@ -191,8 +191,9 @@ def _earlier_stage(config: TrainConfig) -> dict | None:
     out: dict = {"checkpoint": str(path)}
     if (path.parent / "config.json").is_file() and (path.parent / "log.csv").is_file():
         step = load_checkpoint(path).get("step")
-        out["config"] = TrainConfig.load_json(path.parent / "config.json").to_dict()
-        out["training"] = _training_summary(path.parent, step)
+        earlier = TrainConfig.load_json(path.parent / "config.json")
+        out["config"] = earlier.to_dict()
+        out["training"] = _training_summary(path.parent, step, earlier.selection)
     return out
 
 
@@ -211,8 +212,8 @@ def publish_run(
     if dest.suffix != ".pt":
         raise ValueError(f"{dest}: a released checkpoint must be a .pt file")
     state = load_checkpoint(run_dir / "best.pt")
-    training = _training_summary(run_dir, state.get("step"))
     config = TrainConfig.from_dict(state["config"])
+    training = _training_summary(run_dir, state.get("step"), config.selection)
     earlier = _earlier_stage(config)
     splits = load_splits(config)
     translation = None

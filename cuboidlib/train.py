@@ -11,8 +11,8 @@ steps (the lessons look inside a run that way).
 **Data** (:mod:`cuboidlib.dataset`). A procedural collection (:func:`cuboidlib.shapes.make_collection`)
 or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
 validation / test by a seeded permutation (:func:`cuboidlib.dataset.split_indices`). The committed
-networks' recipes are :func:`course_config`. Model selection (``best.pt``) uses the validation loss only; the test
-split is never touched during training (``cuboidlib evaluate`` scores it).
+networks' recipes are :func:`course_config`. Model selection (``best.pt``) uses the validation split only (its
+lowest loss, or with ``selection="last"`` simply the last weights); the test split is never touched during training (``cuboidlib evaluate`` scores it).
 
 **Determinism and exact resume.** Randomness comes from three sources only: the order of the shapes
 (a permutation per epoch seeded by ``(seed, epoch)``, so it needs no saved state), the offsets along
@@ -90,6 +90,9 @@ DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
 VALIDATION_SCORES = ("miou", "n_ac", "box_distance")
 #: Learning-rate schedules: the paper's constant rate, or a half cosine down to ``lr_final``.
 LR_SCHEDULES = ("constant", "cosine")
+#: Model selection (which weights ``best.pt`` holds): those of the lowest validation loss, or the last
+#: validated ones (the end of a falling learning rate), with how a card names each.
+SELECTIONS = {"validation_loss": "lowest validation loss", "last": "last weights"}
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -132,6 +135,9 @@ class TrainConfig(ConfigDict):
         continue training with another schedule), ``batch_size`` shapes per step (paper: 32, the
         global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
         ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time.
+    Model selection: ``selection`` "validation_loss" (default): ``best.pt`` holds the weights of the lowest
+        validation loss; "last": the weights of the last validation (the end of the run), for a run whose
+        falling learning rate is meant to settle the weights at its end.
     Allocation warm-up (a change of the course's recipe, not the paper's): ``temperature_start`` T_0 >= 1
         and ``temperature_steps`` S: the affinity of Eq. (2) is divided by a temperature that falls
         geometrically from T_0 at step 0 to the model's ``affinity_temperature`` at step S and stays
@@ -154,6 +160,7 @@ class TrainConfig(ConfigDict):
     lr: float = 6e-4
     lr_schedule: str = "constant"
     lr_final: float = 0.0
+    selection: str = "validation_loss"
     temperature_start: float = 1.0
     temperature_steps: int = 0
     init_from: str | None = None
@@ -203,6 +210,8 @@ class TrainConfig(ConfigDict):
         if not (isinstance(self.lr_final, (int, float)) and 0 <= self.lr_final <= self.lr):
             raise ValueError(f"TrainConfig.lr_final must be a number between 0 and lr ({self.lr}), got {self.lr_final!r}")
         self.lr_final = float(self.lr_final)
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"TrainConfig.selection must be one of {tuple(SELECTIONS)}, got {self.selection!r}")
         t0 = self.temperature_start
         if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not 1.0 <= t0 <= 100.0:
             raise ValueError(f"TrainConfig.temperature_start must be a number in [1, 100], got {t0!r}")
@@ -664,7 +673,7 @@ class Trainer:
 
     def _validate(self, seconds: float) -> None:
         """Validation loss on the validation split (rank 0); keep ``best.pt`` at its minimum (from the end of
-        the temperature warm-up on)."""
+        the temperature warm-up on), or at the latest weights with ``selection="last"``."""
         if not self.dist.is_main:
             return
         self.model.segmentation.temperature = self.affinity_temperature(self.step)
@@ -675,7 +684,7 @@ class Trainer:
         if not math.isfinite(values["total"]):
             raise TrainingDiverged(self.step, ["validation loss"], values, self._last_saved)
         warm_up = self.config.temperature_steps
-        if self.step < warm_up:  # during the warm-up best.pt follows the latest weights
+        if self.step < warm_up or self.config.selection == "last":  # best.pt follows the latest weights
             improved = True
         else:
             improved = self.best_val is None or self.best_step < warm_up or values["total"] < self.best_val

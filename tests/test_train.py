@@ -87,6 +87,7 @@ def test_partial_config_file_fills_in_defaults(tmp_path):
         ({"lr_final": 1.0}, "lr_final must be a number between 0 and lr"),
         ({"temperature_start": 0.5}, "temperature_start must be a number in"),
         ({"temperature_steps": -1}, "temperature_steps must be an integer >= 0"),
+        ({"selection": "best"}, "selection must be one of"),
     ],
 )
 def test_bad_config_values_are_refused(change, match):
@@ -280,6 +281,21 @@ def test_temperature_warm_up_falls_geometrically_and_best_is_chosen_after_it(tmp
     assert result.best_step == 8 and load_checkpoint(tmp_path / "best.pt")["best_step"] == 8
     assert Trainer(config.replace(temperature_steps=0), tmp_path / "none", quiet=True,
                    splits=splits).affinity_temperature(0) == 2.0
+
+
+def test_selection_last_keeps_the_last_weights_even_when_the_loss_rises(tmp_path, tiny, monkeypatch):
+    config, splits = tiny
+    losses = iter([1.0, 2.0, 3.0])  # validations at steps 4, 8 and 9: the first has the lowest loss
+    monkeypatch.setattr("cuboidlib.train.validation_loss", lambda *a, **k: {"total": next(losses), "reconstruction": 1.0})
+    monkeypatch.setattr(Trainer, "_validation_scores", lambda self: {})
+    trainer = Trainer(config.replace(selection="last"), tmp_path, quiet=True, splits=splits)
+    result = trainer.run()
+    best, last = load_checkpoint(tmp_path / "best.pt"), load_checkpoint(tmp_path / "last.pt")
+    assert result.best_step == best["best_step"] == 9 and best["best_val"] == 3.0
+    for name, value in last["model"].items():
+        torch.testing.assert_close(best["model"][name], value, rtol=0, atol=0, msg=name)
+    losses = iter([1.0, 2.0, 3.0])  # the default keeps the lowest
+    assert Trainer(config, tmp_path / "default", quiet=True, splits=splits).run().best_step == 4
 
 
 def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
@@ -584,6 +600,7 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     assert card["command"] == "cuboidlib " + " ".join(argv)
     assert card["config"] == best["config"]
     assert card["training"]["steps"] == 4 and card["training"]["selected_step"] == best["step"]
+    assert card["training"]["selection"] == "lowest validation loss"
     logged = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "train"]
     assert card["training"]["seconds"] == round(float(logged[-1]["seconds"]), 1) >= 0  # a tiny run may round to 0.0
     assert card["test"]["n_shapes"] == len(splits["test"])
