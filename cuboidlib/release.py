@@ -211,6 +211,7 @@ def publish_run(
     run_dir, dest = Path(run_dir), Path(dest)
     if dest.suffix != ".pt":
         raise ValueError(f"{dest}: a released checkpoint must be a .pt file")
+    commit = git_commit()  # before dest is written: replacing a committed checkpoint must not read as "+dirty"
     state = load_checkpoint(run_dir / "best.pt")
     config = TrainConfig.from_dict(state["config"])
     training = _training_summary(run_dir, state.get("step"), config.selection)
@@ -243,7 +244,7 @@ def publish_run(
         "format": CARD_FORMAT,
         "checkpoint": dest.name,
         "command": command,
-        "git_commit": git_commit(),
+        "git_commit": commit,
         "machine": {"cpus": os.cpu_count(), "processes": state.get("world_size", 1),
                     "torch_threads": config.num_threads or torch.get_num_threads(),
                     "torch": torch.__version__, "python": platform.python_version(),

@@ -583,12 +583,14 @@ def test_both_stages_in_one_torchrun_command_share_the_processes_and_the_card_sa
 # -------------------------------------------------------------------------------------- release
 
 
-def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsys):
+def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsys, monkeypatch):
     from cuboidlib.release import read_card
 
     config, splits = tiny
     cfg = config.replace(max_steps=4).save_json(tmp_path / "c.json")
     dest = tmp_path / "published" / "chair.pt"
+    # the commit is read before the checkpoint is written (replacing a committed one would read as "+dirty")
+    monkeypatch.setattr("cuboidlib.release.git_commit", lambda: "written" if dest.exists() else "before")
     argv = ["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--release", str(dest)]
     assert main(argv) == 0
     released = load_checkpoint(dest)
@@ -597,7 +599,7 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     assert released["step"] == best["step"] and released["config"] == best["config"]
     _assert_same_state(released["model"], best["model"])
     card = read_card(dest)
-    assert card["command"] == "cuboidlib " + " ".join(argv)
+    assert card["command"] == "cuboidlib " + " ".join(argv) and card["git_commit"] == "before"
     assert card["config"] == best["config"]
     assert card["training"]["steps"] == 4 and card["training"]["selected_step"] == best["step"]
     assert card["training"]["selection"] == "lowest validation loss"
