@@ -305,7 +305,9 @@ class Run:
       ``segmentation`` ("normal" / "nearest_surface": segment by the nearest existing cuboid under
       that distance instead of W), ``reference_points`` (also score against this many points of the
       same test shapes), ``baseline`` (also score the k-means boxes with K = round(N_AC)), ``refine``
-      (also score the network's result refined by this many steps of the per-shape fit started from it).
+      (also score the network's result refined by this many steps of the per-shape fit started from it),
+      ``checkpoint_sha256`` (of a "score" task: the checkpoint's content, so that ``--resume`` scores a
+      replaced checkpoint anew; :func:`file_sha256`).
     """
 
     name: str
@@ -457,7 +459,7 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
 
 #: TrainConfig fields added after trainings were first shared; left out of :func:`training_key` while they keep
 #: their defaults, so that the trainings made before them keep their keys.
-KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps")
+KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps", "selection")
 
 
 def _without_neutral_defaults(config: dict) -> dict:
@@ -555,6 +557,11 @@ RECORD_FILE = "record.json"
 
 def _write_record(run_dir: Path, record: dict) -> None:
     write_text_atomic(run_dir / RECORD_FILE, json.dumps(record))  # an interrupted write leaves no half record
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes (hex), e.g. of a checkpoint that a "score" run reads."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def finished_record(run: Run, run_dir: Path) -> dict | None:

@@ -78,7 +78,8 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
                 if config.category != category:
                     raise ValueError(f"{path} was trained on {config.category!r}, not {category!r}")
                 runs.append(runner.Run(f"{category}_network_seed{seed}", key, config, task="score",
-                                       options={"checkpoint": str(path), "baseline": True, "refine": refine}))
+                                       options={"checkpoint": str(path), "checkpoint_sha256": runner.file_sha256(path),
+                                                "baseline": True, "refine": refine}))
             else:
                 config = scale.config(category, seed)
                 runs.append(runner.Run(f"{category}_network_seed{seed}", key, config,

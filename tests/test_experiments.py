@@ -383,6 +383,13 @@ def test_runner_end_to_end_writes_results_with_provenance(tmp_path, capsys):
     assert refined["metrics"]["n_ac"] <= record["results"][0]["metrics"]["n_ac"], "refinement adds no cuboid"
     boxes = record["results"][2]["metrics"]["boxes"]
     assert boxes == max(1, round(record["results"][0]["metrics"]["n_ac"]))
+    # --resume reads the score back while the checkpoint is the same file, and scores a replaced one anew
+    assert runner.finished_record(runs[0], tmp_path / "score") is not None
+    state = torch.load(released / "chair.pt", weights_only=True)
+    state["step"] = state.get("step", 0) + 1
+    torch.save(state, released / "chair.pt")
+    _, replaced = _runs(table12, "--quick", "--categories", "chair", "--checkpoints", str(released))
+    assert runner.finished_record(replaced[0], tmp_path / "score") is None
 
 
 def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, capsys):
