@@ -82,9 +82,10 @@ def _add_train_command(sub) -> None:
         description="Train the cuboid abstraction network (Sec. 3.4.5). Settings come from the defaults "
         "(the paper's), then --config FILE (a JSON object with any TrainConfig fields; 'model' and 'loss' may "
         "be partial), then the flags below, then --set. Writes OUT/config.json, OUT/last.pt (full state, "
-        "for --resume), OUT/best.pt (the lowest validation loss, or the last weights with selection=last) and OUT/log.csv. --resume continues OUT/last.pt "
-        "exactly (only budget and bookkeeping fields may change). Under torchrun the same command trains "
-        "with DistributedDataParallel: torchrun --nproc_per_node=2 -m cuboidlib train --config cfg.json --out DIR",
+        "for --resume), OUT/best.pt (the lowest validation loss, or the last weights with selection=last) and "
+        "OUT/log.csv. --resume continues OUT/last.pt exactly (only budget and bookkeeping fields may change). "
+        "Under torchrun the same command trains with DistributedDataParallel: "
+        "torchrun --nproc_per_node=2 -m cuboidlib train --config cfg.json --out DIR",
     )
     p.add_argument("--config", help="JSON config file (TrainConfig fields)")
     p.add_argument("--out", required=True, help="run folder (last.pt, best.pt, config.json, log.csv)")

@@ -12,7 +12,8 @@ steps (the lessons look inside a run that way).
 or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
 validation / test by a seeded permutation (:func:`cuboidlib.dataset.split_indices`). The committed
 networks' recipes are :func:`course_config`. Model selection (``best.pt``) uses the validation split only (its
-lowest loss, or with ``selection="last"`` simply the last weights); the test split is never touched during training (``cuboidlib evaluate`` scores it).
+lowest loss, or with ``selection="last"`` simply the last weights); the test split is never touched during
+training (``cuboidlib evaluate`` scores it).
 
 **Determinism and exact resume.** Randomness comes from three sources only: the order of the shapes
 (a permutation per epoch seeded by ``(seed, epoch)``, so it needs no saved state), the offsets along
