@@ -71,7 +71,7 @@ def git_commit(folder: str | os.PathLike | None = None) -> str | None:
 CURVE_MARKS = (15, 30, 60)
 
 
-def _training_summary(run_dir: Path, selected_step: int | None, selection: str = "validation_loss") -> dict:
+def _training_summary(run_dir: Path, selected_step: int | None, selection: str) -> dict:
     """Steps and wall-clock seconds of a run and its validation curve, from its ``log.csv``.
 
     ``validation``: one entry per validation row (step, seconds, loss, N_AC, mIoU, box distance,
