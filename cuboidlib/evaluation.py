@@ -25,6 +25,8 @@ each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), whi
 * **Box distance** (agreement of segmentation and abstraction, not a metric of the paper): the mean
   distance of a point to the solid box of the cuboid it is segmented to
   (:func:`~cuboidlib.metrics.segment_box_distance`), on shapes of diagonal 1.
+* **Reassigned points** (agreement of allocation and existence, not a metric of the paper): the share of
+  the points whose most allocated cuboid does not exist (:func:`~cuboidlib.metrics.reassigned_fraction`).
 
 A shape on which the network predicts no existing cuboid is scored with its single most probable
 cuboid (counted in ``shapes_without_existing_cuboid``); N_AC counts the cuboids actually used.
@@ -47,6 +49,7 @@ from .metrics import (
     normal_consistency_terms,
     number_of_existing_cuboids,
     part_ious,
+    reassigned_fraction,
     segment_box_distance,
     transfer_part_labels,
 )
@@ -154,7 +157,9 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
     IoU, None for a part absent from the scored shapes), ``label_transfer`` (who was labelled, the
     part of every cuboid index), ``box_distance`` (mean over shapes of
     :func:`~cuboidlib.metrics.segment_box_distance`; None when the segmentation is of other points than
-    ``shapes``, as when cuboids are scored against a denser sampling) and ``n_ac``.
+    ``shapes``, as when cuboids are scored against a denser sampling), ``reassigned`` (mean over shapes of
+    :func:`~cuboidlib.metrics.reassigned_fraction`; None without an allocation, as for k-means boxes) and
+    ``n_ac``.
     """
     seg, c = pred.labels.cpu(), pred.cuboids
     box = None
@@ -172,9 +177,10 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
         per_part = {names[i]: (None if ious[i].isnan() else float(ious[i])) for i in range(num_parts)}
         transfer = {"fraction": label_transfer_fraction, "n_labelled": len(labelled), "n_scored": len(scored),
                     "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
+    reassigned = None if pred.W is None else float(reassigned_fraction(pred.W, c.exists).double().mean())
     return {"miou": miou, "part_iou": per_part, "label_transfer": transfer,
             "box_distance": None if box is None else float(box.double().mean()),
-            "n_ac": float(number_of_existing_cuboids(c.exists))}
+            "reassigned": reassigned, "n_ac": float(number_of_existing_cuboids(c.exists))}
 
 
 def evaluate_model(
@@ -268,6 +274,10 @@ def format_table(results: Sequence[dict], title: str | None = None) -> str:
     lines.append("N_AC: average number of existing cuboids (existence probability > 0.5; k-means: boxes fitted).")
     lines.append("box dist: mean distance of a point to the solid box of the cuboid it is segmented to (shape "
                  "diagonal 1; 0 = every segment inside its box), the agreement of segmentation and abstraction.")
+    for r in results:
+        if r.get("reassigned") is not None:
+            lines.append(f"{r['method']}: {100 * r['reassigned']:.1f} % of the points are allocated most to a cuboid "
+                         "that does not exist and are segmented to another one.")
     for r in results:
         if r.get("shapes_without_existing_cuboid"):
             lines.append(f"{r['method']}: {r['shapes_without_existing_cuboid']} of {r['n_shapes']} shapes have no "

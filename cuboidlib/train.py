@@ -135,7 +135,8 @@ class TrainConfig(ConfigDict):
         (optional: a checkpoint whose weights start the run instead of a random initialisation, to
         continue training with another schedule), ``batch_size`` shapes per step (paper: 32, the
         global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
-        ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time.
+        ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time, counted over
+        every session of the run (a run resumed after its budget is used up trains no further step).
     Model selection: ``selection`` "validation_loss" (default): ``best.pt`` holds the weights of the lowest
         validation loss; "last": the weights of the last validation (the end of the run), for a run whose
         falling learning rate is meant to settle the weights at its end.
@@ -712,7 +713,13 @@ class Trainer:
 
         config = self.config
         start = time.monotonic()
-        deadline = start + 60 * config.max_minutes if config.max_minutes is not None else math.inf
+        # The budget counts the training time of earlier sessions of this run (a resumed run gets what is left).
+        budget = 60 * config.max_minutes - self.elapsed if config.max_minutes is not None else math.inf
+        deadline = start + budget
+        if budget <= 0:  # resumed after the time budget was used up: last.pt is final (validated at the stop)
+            self.dist.stop()
+            return TrainResult(self.step, self.step // self.steps_per_epoch, "time budget", self.best_val,
+                               self.best_step, self.elapsed, self.last_terms, str(self.out_dir))
         shard = slice(self.dist.rank, None, self.dist.world_size)
         bar = tqdm(total=self.total_steps, initial=self.step, desc="training", unit="step", dynamic_ncols=True,
                    disable=True if (self.quiet or not self.dist.is_main) else None, file=sys.stderr)

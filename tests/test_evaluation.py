@@ -135,6 +135,16 @@ def test_evaluate_model_runs_the_network_and_falls_back_to_one_cuboid():
     r = evaluate_model(model, shapes, conventions=[ChamferConvention(n_samples=256)])
     assert r["shapes_without_existing_cuboid"] == 4 and r["n_ac"] == 1.0
     assert "network: 4 of 4 shapes have no cuboid with existence probability > 0.5" in format_table([r])
+    # only the fallback cuboid exists: every point allocated most to another one is reassigned
+    with torch.no_grad():
+        out = model.eval()(shapes.points)
+    kept = out.exist_probs.argmax(dim=1, keepdim=True)
+    assert r["reassigned"] == pytest.approx(float((out.W.argmax(dim=-1) != kept).double().mean()))
+    assert r["reassigned"] > 0
+    assert f"network: {100 * r['reassigned']:.1f} % of the points are allocated most to a cuboid" in format_table([r])
+    with torch.no_grad():
+        model.abstraction.D_cp.existence[-1].bias.fill_(100.0)  # every cuboid exists: nobody is moved
+    assert evaluate_model(model, shapes, conventions=[ChamferConvention(n_samples=256)])["reassigned"] == 0.0
 
 
 def test_networks_trained_with_centroid_centres_are_scored_with_them():
@@ -159,6 +169,7 @@ def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():
     assert r["normal_consistency"] > perfect["normal_consistency"] - 0.05
     assert r["chamfer"][0]["value"] < 2 * perfect["chamfer"][0]["value"]
     assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid"}
+    assert r["reassigned"] is None  # k-means boxes have no allocation
     with pytest.raises(ValueError, match="num_boxes must be a positive integer"):
         evaluate_baseline(shapes, num_boxes=0)
 

@@ -11,6 +11,7 @@ from cuboidlib.metrics import (
     normal_consistency_terms,
     number_of_existing_cuboids,
     part_ious,
+    reassigned_fraction,
     segment_box_distance,
     transfer_part_labels,
 )
@@ -231,6 +232,31 @@ def test_segment_box_distance_by_hand():
     # a corner point: distance to the corner, not to a face
     corner = segment_box_distance(torch.tensor([[[2.0, 2.0, 2.0]]]), torch.tensor([[0]]), centers, quats, half)
     torch.testing.assert_close(corner, torch.tensor([math.sqrt(3.0)]))
+
+
+def test_reassigned_fraction_by_hand():
+    # Shape 0: points 0-2 allocated most to cuboid 0, point 3 to cuboid 1; only cuboid 0 exists -> 1/4.
+    # Shape 1: every point's most allocated cuboid exists -> 0.
+    W = torch.tensor([[[0.9, 0.1], [0.8, 0.2], [0.6, 0.4], [0.3, 0.7]],
+                      [[0.1, 0.9], [0.2, 0.8], [0.6, 0.4], [0.3, 0.7]]])
+    exists = torch.tensor([[True, False], [True, True]])
+    torch.testing.assert_close(reassigned_fraction(W, exists), torch.tensor([0.25, 0.0]))
+    # no cuboid exists: every point is reassigned
+    torch.testing.assert_close(reassigned_fraction(W[:1], torch.tensor([[False, False]])), torch.tensor([1.0]))
+
+
+@pytest.mark.parametrize("exists, match", [
+    (torch.tensor([[1, 0]]), "bool"),
+    (torch.tensor([[True, False, True]]), "shape"),
+])
+def test_reassigned_fraction_rejects_bad_existence(exists, match):
+    with pytest.raises(ValueError, match=match):
+        reassigned_fraction(torch.rand(1, 5, 2), exists)
+
+
+def test_reassigned_fraction_rejects_bad_allocation():
+    with pytest.raises(ValueError, match="allocation"):
+        reassigned_fraction(torch.rand(5, 2), torch.tensor([[True, False]]))
 
 
 def test_segment_box_distance_is_invariant_to_a_rigid_motion():

@@ -384,6 +384,20 @@ def test_time_budget_stops_cleanly_with_a_checkpoint(tmp_path, tiny):
     assert load_checkpoint(tmp_path / "best.pt")["step"] == result.step  # validated at the stop
 
 
+def test_time_budget_counts_the_earlier_sessions_of_a_resumed_run(tmp_path, tiny):
+    config, splits = tiny
+    config = config.replace(max_steps=500, max_minutes=1e-6)
+    first = Trainer(config, tmp_path, quiet=True, splits=splits).run()
+    weights, log = load_checkpoint(tmp_path / "best.pt")["model"], (tmp_path / "log.csv").read_text()
+    again = Trainer(config, tmp_path, resume=True, quiet=True, splits=splits).run()
+    assert again.stopped == "time budget" and again.step == first.step  # the budget was used up: no step
+    assert (tmp_path / "log.csv").read_text() == log  # nor a second validation of the same weights
+    _assert_same_state(load_checkpoint(tmp_path / "best.pt")["model"], weights)
+    longer = Trainer(config.replace(max_steps=first.step + 3, max_minutes=10.0), tmp_path, resume=True,
+                     quiet=True, splits=splits).run()
+    assert longer.stopped == "finished" and longer.step == first.step + 3
+
+
 # ---------------------------------------------------------------------------------- divergence
 
 
