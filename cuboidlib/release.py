@@ -277,12 +277,13 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     Columns: category, M, training (steps, minutes; "a + b" for a network trained in two stages; the
     number of training processes), the
     network's test Chamfer distance (x 1000,
-    convention of the first one in the card), normal consistency, mIoU (%), N_AC, and the same for the
-    baseline at the same number of boxes.
+    convention of the first one in the card), normal consistency, mIoU (%), and the same for the
+    baseline at the same number of boxes; the network's N_AC and box distance ("-" on a card scored
+    before the box distance existed).
     """
     rows = ["| checkpoint | M | training | test shapes | CD x1000: network / baseline | NC: network / baseline "
-            "| mIoU %: network / baseline | N_AC |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+            "| mIoU %: network / baseline | N_AC | box distance |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for checkpoint in checkpoints:
         card = read_card(checkpoint)
         network, baseline = card["test"]["results"]
@@ -292,11 +293,12 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
         steps = " + ".join(str(t["steps"]) for t in stages)
         minutes = " + ".join(f"{t['seconds'] / 60:.1f}" for t in stages)
         processes = card["machine"].get("processes", 1)
+        box = "-" if network.get("box_distance") is None else f"{network['box_distance']:.4f}"
         rows.append(
             f"| `{card['checkpoint']}` | {card['config']['model']['num_cuboids']} "
             f"| {steps} steps, {minutes} min, {processes} process{'es' if processes > 1 else ''} "
             f"| {card['test']['n_shapes']} "
             f"| {cd[0]:.2f} / {cd[1]:.2f} | {network['normal_consistency']:.3f} / {baseline['normal_consistency']:.3f} "
-            f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} |"
+            f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} | {box} |"
         )
     return "\n".join(rows)

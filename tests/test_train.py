@@ -631,7 +631,14 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     for row in (network, baseline):
         assert row["chamfer"][0]["value"] > 0 and 0 <= row["miou"] <= 1
         assert row["box_distance"] >= 0 and set(row["part_iou"]) == set(splits["test"].part_names)
+    assert 0 <= network["reassigned"] <= 1 and baseline["reassigned"] is None
     assert "squared L2" in card["test"]["table"]
+    from cuboidlib.release import cards_markdown
+
+    header, _, row = cards_markdown([dest]).splitlines()
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert header.endswith("| N_AC | box distance |") and len(cells) == 9
+    assert cells[0] == "`chair.pt`" and cells[-2:] == [f"{network['n_ac']:.2f}", f"{network['box_distance']:.4f}"]
 
 
 def test_card_of_a_two_stage_recipe_holds_both_stages(tmp_path, tiny, capsys):
