@@ -48,6 +48,7 @@ from .metrics import (
     mean_iou,
     normal_consistency_terms,
     number_of_existing_cuboids,
+    part_confusion,
     part_ious,
     reassigned_fraction,
     segment_box_distance,
@@ -155,7 +156,8 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
 
     Returns a dict: ``miou`` (label transfer, None without part labels), ``part_iou`` (part name ->
     IoU, None for a part absent from the scored shapes), ``label_transfer`` (who was labelled, the
-    part of every cuboid index), ``box_distance`` (mean over shapes of
+    part of every cuboid index, and the ``confusion`` of the scored points, :func:`~cuboidlib.metrics.part_confusion`:
+    ``counts[t][p]`` points of part ``parts[t]`` labelled ``parts[p]``), ``box_distance`` (mean over shapes of
     :func:`~cuboidlib.metrics.segment_box_distance`; None when the segmentation is of other points than
     ``shapes``, as when cuboids are scored against a denser sampling), ``reassigned`` (mean over shapes of
     :func:`~cuboidlib.metrics.reassigned_fraction`; None without an allocation, as for k-means boxes) and
@@ -175,8 +177,10 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
         ious = part_ious(cuboid_labels[seg[scored]], gt[scored], num_parts)
         names = shapes.part_names or tuple(f"part {i}" for i in range(num_parts))
         per_part = {names[i]: (None if ious[i].isnan() else float(ious[i])) for i in range(num_parts)}
+        confusion = part_confusion(cuboid_labels[seg[scored]], gt[scored], num_parts)
         transfer = {"fraction": label_transfer_fraction, "n_labelled": len(labelled), "n_scored": len(scored),
-                    "seed": seed, "cuboid_labels": cuboid_labels.tolist()}
+                    "seed": seed, "cuboid_labels": cuboid_labels.tolist(),
+                    "confusion": {"parts": list(names[:num_parts]), "counts": confusion.tolist()}}
     reassigned = None if pred.W is None else float(reassigned_fraction(pred.W, c.exists).double().mean())
     return {"miou": miou, "part_iou": per_part, "label_transfer": transfer,
             "box_distance": None if box is None else float(box.double().mean()),

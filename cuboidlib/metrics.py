@@ -14,7 +14,7 @@ incompatible ways, so every choice is explicit here:
 - :func:`transfer_part_labels` and :func:`mean_iou` implement the paper's label transfer (Sec. 4.2):
   each cuboid index gets the semantic part label that most of its points carry on a labelled subset
   of shapes, and those labels score the segmentation of the test shapes; :func:`part_ious` gives the
-  IoU of every part label behind the mean.
+  IoU of every part label behind the mean, and :func:`part_confusion` where each part's points went.
 - :func:`segment_box_distance` measures whether segmentation and abstraction agree: how far the
   points of each segment lie outside the cuboid that stands for them.
 - :func:`reassigned_fraction` measures whether allocation and existence agree: the share of points
@@ -43,6 +43,7 @@ __all__ = [
     "number_of_existing_cuboids",
     "transfer_part_labels",
     "part_ious",
+    "part_confusion",
     "mean_iou",
     "segment_box_distance",
     "reassigned_fraction",
@@ -278,6 +279,21 @@ def part_ious(predicted_parts, part_labels, num_parts: int) -> torch.Tensor:
     """
     inter, union = (x.sum(dim=0) for x in _intersections_and_unions(predicted_parts, part_labels, num_parts))
     return torch.where(union > 0, inter / union.clamp_min(1), torch.full_like(union, math.nan))
+
+
+def part_confusion(predicted_parts, part_labels, num_parts: int) -> torch.Tensor:
+    """Where the points of every part went: a confusion matrix of a part segmentation.
+
+    predicted_parts, part_labels: (S, N) part indices (predicted_parts may hold -1 = no label, not counted).
+    Returns (num_parts, num_parts) int64: entry [t, p] counts the points of true part t labelled p, over all
+    shapes. The diagonal is the intersection of :func:`part_ious`; an off-diagonal entry shows which part
+    takes a part's points. Example: armrest cuboids that carry a leg in armless chairs give a large
+    [leg, arm] entry.
+    """
+    _intersections_and_unions(predicted_parts, part_labels, num_parts)  # the same checks
+    pred, gt = torch.as_tensor(predicted_parts).long(), torch.as_tensor(part_labels).long()
+    keep = pred >= 0
+    return torch.bincount(gt[keep] * num_parts + pred[keep], minlength=num_parts * num_parts).view(num_parts, num_parts)
 
 
 def mean_iou(predicted_parts, part_labels, num_parts: int, per_shape: bool = False) -> float:

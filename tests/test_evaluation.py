@@ -170,6 +170,11 @@ def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():
     assert r["chamfer"][0]["value"] < 2 * perfect["chamfer"][0]["value"]
     assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid"}
     assert r["reassigned"] is None  # k-means boxes have no allocation
+    confusion = r["label_transfer"]["confusion"]
+    assert confusion["parts"] == list(shapes.part_names)
+    scored = shapes.labels[torch.as_tensor(label_transfer_split(len(shapes))[1])]
+    sizes = [int((scored == i).sum()) for i in range(len(shapes.part_names))]
+    assert all(0 < sum(row) <= size for row, size in zip(confusion["counts"], sizes)), (confusion, sizes)
     with pytest.raises(ValueError, match="num_boxes must be a positive integer"):
         evaluate_baseline(shapes, num_boxes=0)
 

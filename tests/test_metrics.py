@@ -10,6 +10,7 @@ from cuboidlib.metrics import (
     normal_consistency,
     normal_consistency_terms,
     number_of_existing_cuboids,
+    part_confusion,
     part_ious,
     reassigned_fraction,
     segment_box_distance,
@@ -232,6 +233,21 @@ def test_segment_box_distance_by_hand():
     # a corner point: distance to the corner, not to a face
     corner = segment_box_distance(torch.tensor([[[2.0, 2.0, 2.0]]]), torch.tensor([[0]]), centers, quats, half)
     torch.testing.assert_close(corner, torch.tensor([math.sqrt(3.0)]))
+
+
+def test_part_confusion_by_hand_and_its_diagonal_is_the_iou_intersection():
+    gt = torch.tensor([[0, 0, 1, 1, 2], [0, 1, 1, 2, 2]])
+    pred = torch.tensor([[0, 1, 1, 1, 2], [0, -1, 1, 1, 2]])  # -1: a cuboid without a label, not counted
+    expected = torch.tensor([[2, 1, 0],
+                             [0, 3, 0],
+                             [0, 1, 2]])
+    assert torch.equal(part_confusion(pred, gt, 3), expected)
+    iou = part_ious(pred, gt, 3)
+    union = expected.sum(dim=0) + expected.sum(dim=1) - expected.diag()
+    union[1] += 1  # the unlabelled point of part 1 is in its union, not in the matrix
+    torch.testing.assert_close(iou, expected.diag().double() / union.double())
+    with pytest.raises(ValueError, match="same shape"):
+        part_confusion(pred[:, :3], gt, 3)
 
 
 def test_reassigned_fraction_by_hand():
