@@ -190,11 +190,12 @@ def test_committed_checkpoint_comes_with_its_card_and_config(category):
     assert config.model_config.num_cuboids == PAPER_M[category]
     # two stages: the recipe (configs/<category>.json), then the fine-tuning of configs/finetune/<category>.json,
     # which starts from the first stage's best weights; one command (--finetune, one process or two under
-    # torchrun), or, for a network released before that command existed, the second of two commands
+    # torchrun; --resume when it continued a finished first stage), or, for a network released before that
+    # command existed, the second of two commands
     configs = "data_samples/checkpoints/configs"
     one_command = rf"(torchrun --nproc_per_node=2 -m )?cuboidlib train --config {configs}/{category}\.json " \
                   rf"--finetune {configs}/finetune/{category}\.json --out runs/{category} " \
-                  rf"--release data_samples/checkpoints/{category}\.pt( --quiet)?"
+                  rf"--release data_samples/checkpoints/{category}\.pt( --resume)?( --quiet)?"
     second_of_two = rf"cuboidlib train --config {configs}/finetune/{category}\.json --out \S+ " \
                     rf"--release data_samples/checkpoints/{category}\.pt"
     assert re.fullmatch(one_command, card["command"]) or re.fullmatch(second_of_two, card["command"]), card["command"]
