@@ -90,7 +90,8 @@ def _add_train_command(sub) -> None:
     p.add_argument("--config", help="JSON config file (TrainConfig fields)")
     p.add_argument("--out", required=True, help="run folder (last.pt, best.pt, config.json, log.csv)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last.pt")
-    p.add_argument("--max-minutes", type=float, help="time budget: stop cleanly and checkpoint after this long")
+    p.add_argument("--max-minutes", type=float, help="time budget: stop cleanly and checkpoint after this long "
+                   "(with --resume: in all, counting the earlier sessions of the run)")
     p.add_argument("--max-steps", type=int, help="stop after this many optimiser steps in total")
     p.add_argument("--epochs", type=int, help="epochs (paper: 1000)")
     p.add_argument("--category", help="procedural category: chair, table, airplane or animal")
