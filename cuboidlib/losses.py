@@ -295,6 +295,9 @@ class LossConfig(ConfigDict):
       centers_from_allocation: use c_m = sum_n W p_n / (sum_n W + 1) as cuboid centres in every loss;
       compactness_average: (mean_m sqrt(w_m + eps))^2 instead of the sum (= paper / M^2);
       existence_min_points: existence target N w_m > this many points (code: 24) instead of eps_ext.
+    A course option, in neither the paper nor the code (off by default):
+      lambda_consistency: weight of :func:`slot_consistency_loss`, the portion-weighted spread of each cuboid
+        slot's centre over the shapes of a batch, added to Eq. (9), so that a slot keeps one role in every shape.
     """
 
     lambda_compact: float = 0.1
