@@ -29,6 +29,7 @@ __all__ = [
     "existence_targets",
     "existence_loss",
     "kl_divergence",
+    "slot_consistency_loss",
     "LossConfig",
     "LossTerms",
     "total_loss",
@@ -239,6 +240,37 @@ def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
 
 
 # ---------------------------------------------------------------------------------------------------------
+# Slot consistency across shapes: a course option, not a term of the paper (lambda_consistency = 0 by default)
+#
+# The paper's network gives cuboid slot m the same role in every shape only implicitly (the same code e_m).
+# Nothing stops a slot from holding an armrest in one chair and a leg in another. This term measures how far
+# each slot's centre strays over the shapes of a batch, weighted by how many points the slot holds there.
+# ---------------------------------------------------------------------------------------------------------
+
+
+def slot_consistency_loss(centers: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Portion-weighted spread of every slot's centre over the batch, averaged over the slots (a scalar).
+
+    centers: (B, M, 3) cuboid centres c_bm; w: (B, M) allocation portions. With the weighted mean centre
+    mu_m = sum_b w_bm c_bm / sum_b w_bm, the value is mean_m [sum_b w_bm |c_bm - mu_m|^2 / sum_b w_bm].
+    A shape whose slot m lies far from where the other shapes put it lowers the loss by handing the
+    slot's points to another slot. Example::
+
+        >>> c = torch.tensor([[[0.0, 0, 0]], [[0.2, 0, 0]]]); w = torch.tensor([[0.5], [0.5]])
+        >>> slot_consistency_loss(c, w)
+        tensor(0.0100)
+    """
+    centers = as_float_tensor(centers, "centers")
+    w = _check_portions(w).to(centers)
+    if centers.dim() != 3 or centers.shape[-1] != 3 or centers.shape[:2] != w.shape:
+        raise ValueError(f"centers must have shape (B, M, 3) and w (B, M); got {tuple(centers.shape)} and {tuple(w.shape)}")
+    mass = w.sum(dim=0) + 1e-6  # (M,)
+    mean = (w[..., None] * centers).sum(dim=0) / mass[:, None]  # (M, 3)
+    spread = (w * (centers - mean).square().sum(dim=-1)).sum(dim=0) / mass
+    return spread.mean()
+
+
+# ---------------------------------------------------------------------------------------------------------
 # Total loss: Sec. 3.4.5, Eq. (9), with the ablation variants and the authors' public-code choices as options
 # ---------------------------------------------------------------------------------------------------------
 
@@ -263,6 +295,9 @@ class LossConfig(ConfigDict):
       centers_from_allocation: use c_m = sum_n W p_n / (sum_n W + 1) as cuboid centres in every loss;
       compactness_average: (mean_m sqrt(w_m + eps))^2 instead of the sum (= paper / M^2);
       existence_min_points: existence target N w_m > this many points (code: 24) instead of eps_ext.
+    A course option, in neither the paper nor the code (off by default):
+      lambda_consistency: weight of :func:`slot_consistency_loss`, the portion-weighted spread of each cuboid
+        slot's centre over the shapes of a batch, added to Eq. (9), so that a slot keeps one role in every shape.
     """
 
     lambda_compact: float = 0.1
@@ -277,13 +312,15 @@ class LossConfig(ConfigDict):
     centers_from_allocation: bool = False
     compactness_average: bool = False
     existence_min_points: float | None = None
+    lambda_consistency: float = 0.0
 
     def __post_init__(self) -> None:
         if self.distance not in DISTANCES:
             raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
         if self.allocation not in ALLOCATIONS:
             raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
-        for name in ("lambda_compact", "lambda_exist", "lambda_kl", "sigma_s", "eps_sps", "eps_ext"):
+        for name in ("lambda_compact", "lambda_exist", "lambda_kl", "sigma_s", "eps_sps", "eps_ext",
+                     "lambda_consistency"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
@@ -345,6 +382,8 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
     kl = kl_divergence(output.mu, output.logvar)
     recons, compact, exist, kl = recons.mean(), compact.mean(), exist.mean(), kl.mean()
     total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
+    if c.lambda_consistency > 0:
+        total = total + c.lambda_consistency * slot_consistency_loss(centers, w)
     if c.centers_from_allocation:
         # No term uses the predicted translation; keep it in the graph with weight 0 so that every parameter
         # gets a (zero) gradient, as DistributedDataParallel requires. The value of the loss is unchanged.

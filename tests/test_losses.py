@@ -429,3 +429,72 @@ def test_loss_config_dict_round_trip():
     assert LossConfig.from_dict(config.to_dict()) == config
     with pytest.raises(ValueError, match="unknown"):
         LossConfig.from_dict({"lambda_4": 1.0})
+
+
+# =========================================================================================================
+# Slot consistency across shapes (a course option, lambda_consistency)
+# =========================================================================================================
+
+from cuboidlib.losses import slot_consistency_loss  # noqa: E402
+
+
+def test_slot_consistency_by_hand():
+    # slot 0: centres x = 0 and 0.3 with portions 0.5 and 0.25: mean 0.1, spread (0.5 * 0.01 + 0.25 * 0.04) / 0.75
+    # slot 1: the same centre in both shapes, spread 0
+    centers = torch.tensor([[[0.0, 0, 0], [0.1, 0.2, 0]], [[0.3, 0, 0], [0.1, 0.2, 0]]])
+    w = torch.tensor([[0.5, 0.5], [0.25, 0.75]])
+    expected = ((0.5 * 0.01 + 0.25 * 0.04) / 0.75 + 0.0) / 2
+    assert slot_consistency_loss(centers, w).item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_slot_consistency_ignores_empty_slots_and_is_translation_invariant():
+    g = torch.Generator().manual_seed(1)
+    centers = torch.rand(4, 3, 3, generator=g)
+    w = torch.softmax(torch.randn(4, 3, generator=g), dim=-1)
+    value = slot_consistency_loss(centers, w)
+    torch.testing.assert_close(slot_consistency_loss(centers + torch.tensor([5.0, -2.0, 1.0]), w), value)
+    # a shape whose slot 0 holds no points does not count, wherever that slot's centre is
+    w0 = w.clone()
+    w0[0, 0] = 0.0
+    moved = centers.clone()
+    moved[0, 0] += 10.0
+    torch.testing.assert_close(slot_consistency_loss(moved, w0), slot_consistency_loss(centers, w0))
+
+
+def test_slot_consistency_gradient_moves_points_out_of_a_stray_slot():
+    # slot 0 sits at x = 0 in three shapes and at x = 1 in the fourth: the gradient lowers that shape's portion
+    centers = torch.zeros(4, 2, 3, dtype=torch.float64)
+    centers[3, 0, 0] = 1.0
+    w = torch.full((4, 2), 0.5, dtype=torch.float64, requires_grad=True)
+    slot_consistency_loss(centers, w).backward()
+    assert w.grad[3, 0] > 0 > w.grad[0, 0]
+    cw = torch.rand(3, 2, 3, dtype=torch.float64, requires_grad=True)
+    ww = torch.rand(3, 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(slot_consistency_loss, (cw, ww))
+
+
+def test_total_loss_adds_the_weighted_consistency_term():
+    one, points, normals = _toy_prediction()
+    # two shapes: the toy and a copy whose second cuboid sits elsewhere, with a different allocation
+    out = SimpleNamespace(**{k: torch.cat([v, v]) for k, v in vars(one).items()})
+    out.centers[1, 1] += torch.tensor([0.0, 0.4, 0.0])
+    out.W[1] = out.W[1].flip(-1)
+    points, normals = torch.cat([points, points]), torch.cat([normals, normals])
+    plain = total_loss(out, points, normals, LossConfig(sigma_s=0.0))
+    with_term = total_loss(out, points, normals, LossConfig(sigma_s=0.0, lambda_consistency=0.5))
+    expected = 0.5 * slot_consistency_loss(out.centers, plain.portions)
+    assert expected > 0
+    torch.testing.assert_close(with_term.total, plain.total + expected)
+    # with centroid centres the term uses them, not the predicted translations
+    code = LossConfig.authors_code(sigma_s=0.0)
+    centroids = allocation_weighted_centers(out.W, points)
+    torch.testing.assert_close(total_loss(out, points, normals, LossConfig.authors_code(sigma_s=0.0, lambda_consistency=0.5)).total,
+                               total_loss(out, points, normals, code).total
+                               + 0.5 * slot_consistency_loss(centroids, plain.portions))
+    with pytest.raises(ValueError, match="lambda_consistency"):
+        LossConfig(lambda_consistency=-1.0)
+
+
+def test_slot_consistency_rejects_bad_shapes():
+    with pytest.raises(ValueError, match=r"\(B, M, 3\)"):
+        slot_consistency_loss(torch.zeros(2, 3, 2), torch.full((2, 3), 1 / 3))
