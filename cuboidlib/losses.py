@@ -263,7 +263,8 @@ def slot_consistency_loss(centers: torch.Tensor, w: torch.Tensor) -> torch.Tenso
     centers = as_float_tensor(centers, "centers")
     w = _check_portions(w).to(centers)
     if centers.dim() != 3 or centers.shape[-1] != 3 or centers.shape[:2] != w.shape:
-        raise ValueError(f"centers must have shape (B, M, 3) and w (B, M); got {tuple(centers.shape)} and {tuple(w.shape)}")
+        raise ValueError(f"centers must have shape (B, M, 3) and w (B, M); "
+                         f"got {tuple(centers.shape)} and {tuple(w.shape)}")
     mass = w.sum(dim=0) + 1e-6  # (M,)
     mean = (w[..., None] * centers).sum(dim=0) / mass[:, None]  # (M, 3)
     spread = (w * (centers - mean).square().sum(dim=-1)).sum(dim=0) / mass
