@@ -487,8 +487,9 @@ def test_total_loss_adds_the_weighted_consistency_term():
     torch.testing.assert_close(with_term.total, plain.total + expected)
     # with centroid centres the term uses them, not the predicted translations
     code = LossConfig.authors_code(sigma_s=0.0)
+    code_with_term = LossConfig.authors_code(sigma_s=0.0, lambda_consistency=0.5)
     centroids = allocation_weighted_centers(out.W, points)
-    torch.testing.assert_close(total_loss(out, points, normals, LossConfig.authors_code(sigma_s=0.0, lambda_consistency=0.5)).total,
+    torch.testing.assert_close(total_loss(out, points, normals, code_with_term).total,
                                total_loss(out, points, normals, code).total
                                + 0.5 * slot_consistency_loss(centroids, plain.portions))
     with pytest.raises(ValueError, match="lambda_consistency"):
