@@ -30,6 +30,7 @@ import fig10_compactness as fig10  # noqa: E402
 import fig11_point_density as fig11  # noqa: E402
 import paper_vs_code  # noqa: E402
 import runner  # noqa: E402
+import segmentation_errors  # noqa: E402
 import table1_2_comparison as table12  # noqa: E402
 import table3_supervision as table3  # noqa: E402
 import table4_distance as table4  # noqa: E402
@@ -572,3 +573,37 @@ def test_airplane_engines_moves_the_engine_points_of_mixed_slots_to_free_ones():
     assert labels.tolist() == [[0, 0, 0, 0, 1, 1]]  # the network's solution is left as it was
     counts = airplane_engines.composition(labels, parts[None], 3, 4)
     assert counts.tolist() == [[0, 2, 0, 2], [1, 0, 0, 1], [0, 0, 0, 0]]
+
+
+def test_segmentation_errors_box_distances_by_hand():
+    # one axis-aligned unit box at the origin and one turned 90 degrees about z, half sizes (2, 1, 1) -> (1, 2, 1)
+    turn = [math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]
+    cuboids = Cuboids(torch.tensor([[[0.0, 0, 0], [10, 0, 0]]]), torch.tensor([[[1.0, 0, 0, 0], turn]]),
+                      torch.tensor([[[1.0, 1, 1], [2, 1, 1]]]), torch.tensor([[True, True]]))
+    points = torch.tensor([[0.5, 0, 0], [3, 0, 0], [3, 4, 0], [10, 1.5, 0], [12, 0, 0]])
+    d = segmentation_errors.box_distances(points, cuboids, 0)
+    torch.testing.assert_close(d[:, 0], torch.tensor([0.0, 2, math.hypot(2, 3), math.hypot(9, 0.5), 11]))
+    torch.testing.assert_close(d[:, 1], torch.tensor([8.5, 6, math.hypot(6, 2), 0, 1]))
+
+
+def test_segmentation_errors_moves_foreign_points_of_mixed_slots_to_the_nearest_own_slot():
+    # slots: 0 seat (mixed: two seat points, two back points), 1 back at x = 5, 2 back at x = -5, 3 seat (unused)
+    names = torch.tensor([1, 0, 0, 1])  # part of every slot: 0 back, 1 seat
+    centers = torch.tensor([[[0.0, 0, 0], [5, 0, 0], [-5, 0, 0], [0, 9, 0]]])
+    cuboids = Cuboids(centers, torch.tensor([[[1.0, 0, 0, 0]] * 4]), torch.full((1, 4, 3), 0.5),
+                      torch.tensor([[True, True, True, False]]))
+    points = torch.tensor([[0.0, 0, 0], [0.2, 0, 0], [1, 0, 0], [-1, 0, 0], [5, 0, 0], [-5, 0, 0]])
+    parts = torch.tensor([1, 1, 0, 0, 0, 0])
+    labels = torch.tensor([[0, 0, 0, 0, 1, 2]])
+    start, moved = segmentation_errors.purified_start(AbstractionBatch(cuboids, labels), points, parts, names, {0})
+    assert moved == 2 and start.labels.tolist() == [[0, 0, 1, 2, 1, 2]]
+    assert start.cuboids.exists.tolist() == [[True, True, True, False]]
+    assert labels.tolist() == [[0, 0, 0, 0, 1, 2]]  # the network's solution is left as it was
+    # a slot that loses all its points does not exist in the start
+    start, moved = segmentation_errors.purified_start(
+        AbstractionBatch(cuboids, torch.tensor([[1, 1, 0, 0, 1, 2]])), points, parts, names, {0})
+    assert moved == 2 and start.cuboids.exists.tolist() == [[False, True, True, False]]
+    # with no slot named after the foreign points' part, nothing moves
+    start, moved = segmentation_errors.purified_start(AbstractionBatch(cuboids, labels), points, parts,
+                                                      torch.tensor([1, 1, 1, 1]), {0})
+    assert moved == 0 and start.labels.tolist() == labels.tolist()

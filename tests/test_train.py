@@ -534,21 +534,32 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _run_two_ranks(command):
-    """Run ``command`` as ranks 0 and 1 of a two-process group (the variables torchrun sets); both must succeed."""
-    port = str(_free_port())
-    procs = [
-        subprocess.Popen(
-            command,
-            env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
-                 "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        )
-        for r in (0, 1)
-    ]
-    for p in procs:
-        _, err = p.communicate(timeout=300)
-        assert p.returncode == 0, err.decode()[-3000:]
+def _run_two_ranks(command, attempts: int = 3):
+    """Run ``command`` as ranks 0 and 1 of a two-process group (the variables torchrun sets); both must succeed.
+
+    The port is free when chosen but may be taken by another process before rank 0 binds it; only then
+    (rank 0 reports the address in use) is the pair started again on another port.
+    """
+    for attempt in range(attempts):
+        port = str(_free_port())
+        procs = [
+            subprocess.Popen(
+                command,
+                env={**_env(), "RANK": str(r), "LOCAL_RANK": str(r), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2",
+                     "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": port},
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            )
+            for r in (0, 1)
+        ]
+        _, err0 = procs[0].communicate(timeout=300)
+        if procs[0].returncode != 0 and b"address already in use" in err0.lower() and attempt + 1 < attempts:
+            procs[1].kill()
+            procs[1].communicate()
+            continue
+        _, err1 = procs[1].communicate(timeout=300)
+        assert procs[0].returncode == 0, err0.decode()[-3000:]
+        assert procs[1].returncode == 0, err1.decode()[-3000:]
+        return
 
 
 @pytest.mark.parametrize("centroids", [False, True], ids=["predicted centres", "centroid centres"])
