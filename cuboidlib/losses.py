@@ -14,10 +14,9 @@ from dataclasses import dataclass
 
 import torch
 
-from ._checks import as_float_tensor, check_finite, check_positive, check_shape
+from ._checks import as_float_tensor, check_finite, check_positive
 from .config import ConfigDict
 from .distance import chamfer_distance_to_cuboids, nearest_surface_distance, point_to_cuboid_distance
-from .neighbors import knn_indices
 
 __all__ = [
     "allocation_portions",
@@ -31,7 +30,6 @@ __all__ = [
     "existence_loss",
     "kl_divergence",
     "slot_consistency_loss",
-    "allocation_smoothness_loss",
     "LossConfig",
     "LossTerms",
     "total_loss",
@@ -274,46 +272,6 @@ def slot_consistency_loss(centers: torch.Tensor, w: torch.Tensor) -> torch.Tenso
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Allocation smoothness: a course option, not a term of the paper (lambda_smoothness = 0 by default)
-#
-# The paper's losses price a cuboid by its distance to its points and by its portion, not by where its segment
-# borders another. A small cuboid that covers the junction of two parts (the rear edge of a chair's seat with
-# the bottom of the back) costs them nothing, yet the label transfer must give it one part's name. This term
-# counts the neighbouring points that the allocation puts in different cuboids: such a cuboid adds a second
-# border along the junction, a cuboid per part does not.
-# ---------------------------------------------------------------------------------------------------------
-
-SMOOTHNESS_NEIGHBOURS = 8
-
-
-def allocation_smoothness_loss(W: torch.Tensor, points: torch.Tensor, k: int = SMOOTHNESS_NEIGHBOURS) -> torch.Tensor:
-    """Share of neighbouring point pairs that the allocation separates, averaged over the batch (a scalar).
-
-    W: (B, N, M) allocation (rows sum to 1); points: (B, N, 3). With kNN(n) the k nearest other points of
-    p_n, the value is mean_b mean_n mean_{j in kNN(n)} (1 - sum_m W_bnm W_bjm): for a hard allocation the
-    share of neighbour pairs that lie in different cuboids, which grows with the length of the borders
-    between segments. The neighbours are chosen without gradient. Example::
-
-        >>> p = torch.tensor([[[0.0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]]])
-        >>> W = torch.tensor([[[1.0, 0], [1, 0], [0, 1], [1, 0]]])
-        >>> allocation_smoothness_loss(W, p, k=1)   # only the pair (10, 11) is split, seen from both ends
-        tensor(0.5000)
-    """
-    W = as_float_tensor(W, "W")
-    points = as_float_tensor(points, "points")
-    sizes = check_shape(W, ("B", "N", "M"), "W")
-    check_shape(points, (sizes["B"], sizes["N"], 3), "points")
-    if not isinstance(k, int) or not 1 <= k < sizes["N"]:
-        raise ValueError(f"k must be an integer in [1, N - 1] = [1, {sizes['N'] - 1}], got {k!r}")
-    b, n, m = W.shape
-    nbr = knn_indices(points.detach(), k + 1)  # (B, N, k + 1), the point itself among them (unordered, faster)
-    other = nbr != torch.arange(n, device=nbr.device)[:, None]
-    W_nbr = torch.gather(W, 1, nbr.reshape(b, n * (k + 1), 1).expand(-1, -1, m)).reshape(b, n, k + 1, m)
-    same = (W[:, :, None, :] * W_nbr).sum(dim=-1)  # (B, N, k + 1): probability that the pair shares a cuboid
-    return ((1 - same) * other).sum() / (b * n * k)
-
-
-# ---------------------------------------------------------------------------------------------------------
 # Total loss: Sec. 3.4.5, Eq. (9), with the ablation variants and the authors' public-code choices as options
 # ---------------------------------------------------------------------------------------------------------
 
@@ -340,9 +298,7 @@ class LossConfig(ConfigDict):
       existence_min_points: existence target N w_m > this many points (code: 24) instead of eps_ext.
     A course option, in neither the paper nor the code (off by default):
       lambda_consistency: weight of :func:`slot_consistency_loss`, the portion-weighted spread of each cuboid
-        slot's centre over the shapes of a batch, added to Eq. (9), so that a slot keeps one role in every shape;
-      lambda_smoothness: weight of :func:`allocation_smoothness_loss`, the share of neighbouring points that the
-        allocation puts in different cuboids, added to Eq. (9), so that segments border each other only once.
+        slot's centre over the shapes of a batch, added to Eq. (9), so that a slot keeps one role in every shape.
     """
 
     lambda_compact: float = 0.1
@@ -358,7 +314,6 @@ class LossConfig(ConfigDict):
     compactness_average: bool = False
     existence_min_points: float | None = None
     lambda_consistency: float = 0.0
-    lambda_smoothness: float = 0.0
 
     def __post_init__(self) -> None:
         if self.distance not in DISTANCES:
@@ -366,7 +321,7 @@ class LossConfig(ConfigDict):
         if self.allocation not in ALLOCATIONS:
             raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
         for name in ("lambda_compact", "lambda_exist", "lambda_kl", "sigma_s", "eps_sps", "eps_ext",
-                     "lambda_consistency", "lambda_smoothness"):
+                     "lambda_consistency"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
@@ -430,8 +385,6 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
     total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
     if c.lambda_consistency > 0:
         total = total + c.lambda_consistency * slot_consistency_loss(centers, w)
-    if c.lambda_smoothness > 0:
-        total = total + c.lambda_smoothness * allocation_smoothness_loss(W, points)
     if c.centers_from_allocation:
         # No term uses the predicted translation; keep it in the graph with weight 0 so that every parameter
         # gets a (zero) gradient, as DistributedDataParallel requires. The value of the loss is unchanged.
