@@ -28,7 +28,7 @@ network's figures and refits). No training happens here.
 
 Example::
 
-    python experiments/segmentation_errors.py                       # the four committed networks, about 4 minutes
+    python experiments/segmentation_errors.py                       # the four committed networks, about 3 minutes
     python experiments/segmentation_errors.py --networks runs/table/finetune/best.pt --shapes 4
 """
 
@@ -118,9 +118,7 @@ def analyse(name: str, n_refits: int, steps: int) -> dict:
     share = counts[np.arange(slots), named.numpy()] / np.maximum(counts.sum(1), 1)
     mixed = {m for m in range(slots) if counts[m].sum() and share[m] < PURE}
     wrong = predicted != gt[scored]
-    in_mixed = torch.zeros_like(wrong)
-    for m in mixed:
-        in_mixed |= seg[scored] == m
+    in_mixed = torch.isin(seg[scored], torch.tensor(sorted(mixed), dtype=torch.long))
     pure = torch.where(in_mixed, gt[scored], predicted)  # mixed slots named point by point by the truth
 
     distance, absent = [], 0  # of every misnamed point to the nearest point of the part it was named
