@@ -406,7 +406,7 @@ def _by_network(shape, model, n_points, seed, threshold, centers, device, rotati
         raise ValueError(f"{source or 'shape'}: has {len(pc)} points; the network needs more than k = {net.config.k}")
     trained_centroids = bool(state.get("config", {}).get("loss", {}).get("centers_from_allocation", False))
     centroids = trained_centroids if centers == "auto" else centers == "allocation"
-    out = abstract_shapes(net, pc.points, threshold, centers_from_allocation=centroids)
+    out = abstract_shapes(net, pc.points, threshold, centers_from_allocation=centroids, normals=pc.normals)
     method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
               "threshold": threshold, "centers": "allocation" if centroids else "predicted", "points": len(pc)}
     return pc, out, method

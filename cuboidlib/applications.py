@@ -172,14 +172,23 @@ def _as_batch(points, name: str) -> torch.Tensor:
     return p
 
 
-def encode_shapes(model: CuboidAbstractionNet, points) -> torch.Tensor:
+def encode_shapes(model: CuboidAbstractionNet, points, normals=None) -> torch.Tensor:
     """Latent means mu (B, latent_dim) of point clouds (B, N, 3) or one cloud (N, 3) (Sec. 3.1).
 
     The points must be normalised like the training shapes (:mod:`cuboidlib.normalization`).
+    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals``).
     """
     with _evaluating(model):
-        mu, _ = model.encode(_as_batch(points, "points"))
+        mu, _ = model.encode(_as_batch(points, "points"), _normals_like(normals, points))
     return mu
+
+
+def _normals_like(normals, points):
+    """normals as a (B, N, 3) batch like ``points`` ((N, 3) -> (1, N, 3)), or None."""
+    if normals is None:
+        return None
+    n = normals if isinstance(normals, torch.Tensor) else torch.as_tensor(np.asarray(normals))
+    return n.unsqueeze(0) if n.dim() == 2 else n
 
 
 def abstract_shapes(
@@ -188,6 +197,7 @@ def abstract_shapes(
     threshold: float = 0.5,
     centers_from_allocation: bool = False,
     batch_size: int = 32,
+    normals=None,
 ) -> AbstractionBatch:
     """Cuboid abstraction and segmentation of point clouds by the network (z = mu, Sec. 3).
 
@@ -195,18 +205,22 @@ def abstract_shapes(
     time (evaluation mode: the result does not depend on the batching). ``centers_from_allocation``
     places every cuboid at the allocation-weighted centroid of its points
     (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained that way.
+    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals``).
     Returns :class:`AbstractionBatch` with labels (B, N) (argmax of W over the existing cuboids) and W.
     The existence vectors ``cuboids.exists`` of a collection are what :func:`cluster_by_existence` groups.
     """
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
     p = _as_batch(points, "points").to(next(model.parameters()))
+    n = _normals_like(normals, points)
+    n = None if n is None else n.to(p)
     if p.shape[0] > batch_size:
-        parts = [abstract_shapes(model, chunk, threshold, centers_from_allocation, batch_size)
-                 for chunk in p.split(batch_size)]
+        parts = [abstract_shapes(model, p[s:s + batch_size], threshold, centers_from_allocation, batch_size,
+                                 None if n is None else n[s:s + batch_size])
+                 for s in range(0, p.shape[0], batch_size)]
         return AbstractionBatch.concatenate(parts)
     with _evaluating(model):
-        out = model(p, sample_latent=False)
+        out = model(p, n, sample_latent=False)
         probs = out.exist_probs
         exists = existence_mask(probs, threshold)
         centers = allocation_weighted_centers(out.W, p) if centers_from_allocation else out.centers
@@ -300,16 +314,18 @@ def interpolate_codes(
 
 
 def interpolate_latents(
-    model: CuboidAbstractionNet, points_a, points_b, steps: int = 8, threshold: float = 0.5
+    model: CuboidAbstractionNet, points_a, points_b, steps: int = 8, threshold: float = 0.5,
+    normals_a=None, normals_b=None,
 ) -> Interpolation:
     """Shape interpolation (Sec. 4.4, Fig. 13): encode two point clouds, interpolate their means.
 
     points_a, points_b: (N, 3) each (the two may have different N), normalised. mu_a and mu_b are
     encoded one shape at a time, then :func:`interpolate_codes` decodes the line between them: the
     first step equals ``decode_latents(model, mu_a)`` and the last ``decode_latents(model, mu_b)``.
+    normals_a, normals_b: their normals (N, 3), for a network with ``ModelConfig.input_normals``.
     """
-    mu_a = encode_shapes(model, _single(points_a, "points_a"))
-    mu_b = encode_shapes(model, _single(points_b, "points_b"))
+    mu_a = encode_shapes(model, _single(points_a, "points_a"), normals_a)
+    mu_b = encode_shapes(model, _single(points_b, "points_b"), normals_b)
     return interpolate_codes(model, mu_a[0], mu_b[0], steps, threshold)
 
 

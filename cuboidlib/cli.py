@@ -821,7 +821,8 @@ def _cmd_interpolate(args) -> int:
     for shape, pc in zip((args.shape_a, args.shape_b), clouds):
         if len(pc) <= model.config.k:
             raise UserError(f"{shape}: has {len(pc)} points; the network needs more than k = {model.config.k}")
-    interp = interpolate_latents(model, clouds[0].points, clouds[1].points, args.steps, args.threshold)
+    interp = interpolate_latents(model, clouds[0].points, clouds[1].points, args.steps, args.threshold,
+                                 clouds[0].normals, clouds[1].normals)
     names = (Path(args.shape_a).name, Path(args.shape_b).name)
     methods = [{"name": "interpolate", "checkpoint": str(path), "from": names[0], "to": names[1], "t": float(t),
                 "threshold": args.threshold} for t in interp.t]

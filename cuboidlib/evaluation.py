@@ -82,7 +82,7 @@ def predict_cuboids(
     translation, for networks trained with ``LossConfig(centers_from_allocation=True)`` (the
     authors' code), whose translation head the losses never see.
     """
-    out = abstract_shapes(model, shapes.points, 0.5, centers_from_allocation, batch_size)
+    out = abstract_shapes(model, shapes.points, 0.5, centers_from_allocation, batch_size, normals=shapes.normals)
     empty = ~(out.exist_probs > 0.5).any(dim=1)
     pred = AbstractionBatch(out.cuboids.to(device="cpu"), out.labels.cpu(), out.W.cpu(), out.exist_probs.cpu())
     return pred, int(empty.sum())

@@ -98,6 +98,11 @@ class ModelConfig(ConfigDict):
         allocation stays softer and a misallocated point keeps a gradient towards other cuboids; the
         argmax, hence the segmentation, does not change with T (default 1: the paper's Eq. (3)).
     negative_slope: slope of every LeakyReLU (public code: 0.2).
+    input_normals: feed each point's unit normal to the first EdgeConv beside its coordinates (6
+        input channels instead of 3; the kNN graph stays that of the 3-D points), so that a point
+        feature knows which way the surface faces. The paper and the public code give the encoder
+        the coordinates alone and use the normals only in the loss (default False); with True the
+        network needs the normals at inference too (``forward(points, normals)``).
 
     ``to_dict`` / ``from_dict`` convert to and from a dict of plain JSON types (for checkpoints).
     """
@@ -115,6 +120,7 @@ class ModelConfig(ConfigDict):
     negative_slope: float = 0.2
     cosine_affinity: float | None = None
     affinity_temperature: float = 1.0
+    input_normals: bool = False
 
     def __post_init__(self) -> None:
         for name in ("edge_dims", "cuboid_feature_dims"):
@@ -136,8 +142,9 @@ class ModelConfig(ConfigDict):
                 raise ValueError(
                     f"ModelConfig.{name} must be a non-empty sequence of positive integers, got {value!r}"
                 )
-        if not isinstance(self.attention_scale, bool):
-            raise ValueError(f"ModelConfig.attention_scale must be True or False, got {self.attention_scale!r}")
+        for name in ("attention_scale", "input_normals"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"ModelConfig.{name} must be True or False, got {getattr(self, name)!r}")
         cos = self.cosine_affinity
         if cos is not None:
             if isinstance(cos, bool) or not isinstance(cos, (int, float)) or not 0.0 < cos <= 1000.0:
@@ -173,7 +180,7 @@ class ModelConfig(ConfigDict):
 
     def approximate_parameters(self) -> int:
         """Number of weights of the network's matrices (biases and normalisation left out)."""
-        widths, total, prev = self.edge_dims, 0, 3
+        widths, total, prev = self.edge_dims, 0, self.input_dim
         for w in widths:  # EdgeConv blocks: two 1x1 layers on (x_i, x_j - x_i)
             total += 2 * prev * w + w * w
             prev = w
@@ -199,6 +206,11 @@ class ModelConfig(ConfigDict):
         )
         sizes.update(overrides)
         return cls(**sizes)
+
+    @property
+    def input_dim(self) -> int:
+        """Channels per point that enter the first EdgeConv: 3 coordinates, plus 3 with ``input_normals``."""
+        return 6 if self.input_normals else 3
 
     @property
     def point_feature_dim(self) -> int:
@@ -570,16 +582,18 @@ class FastGlobalFeature(GlobalFeature):
 class FeatureEmbedding(nn.Module):
     """E_pp (EdgeConv layers), the global feature and the VAE head, Sec. 3.1.
 
-    forward(points (B, N, 3)) -> (point_features (B, N, sum(edge_dims)), global_feature
-    (B, global_dim), mu (B, latent_dim), logvar (B, latent_dim)). The first EdgeConv uses the kNN
-    graph of the 3-D points, each later one recomputes it in the previous layer's feature space.
+    forward(points (B, N, 3), normals (B, N, 3) or None) -> (point_features (B, N, sum(edge_dims)),
+    global_feature (B, global_dim), mu (B, latent_dim), logvar (B, latent_dim)). The first EdgeConv
+    reads the coordinates (and, with ``input_normals``, the normals beside them) and uses the kNN graph
+    of the 3-D points, each later one recomputes it in the previous layer's feature space.
     ``fast=False`` builds the readable :class:`EdgeConv` / :class:`GlobalFeature` instead of their
     fast versions (same parameters and results, slower).
     """
 
     def __init__(self, config: ModelConfig, fast: bool = True):
         super().__init__()
-        dims = (3,) + config.edge_dims
+        dims = (config.input_dim,) + config.edge_dims
+        self.input_normals = config.input_normals
         edge_conv, global_layer = (FastEdgeConv, FastGlobalFeature) if fast else (EdgeConv, GlobalFeature)
         self.edge_convs = nn.ModuleList(
             edge_conv(dims[i], dims[i + 1], config.k, config.negative_slope) for i in range(len(config.edge_dims))
@@ -588,11 +602,17 @@ class FeatureEmbedding(nn.Module):
         self.fc_mu = nn.Linear(config.global_dim, config.latent_dim)
         self.fc_logvar = nn.Linear(config.global_dim, config.latent_dim)
 
-    def forward(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        h, features = points, []
+    def forward(
+        self, points: torch.Tensor, normals: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """points (B, N, 3), and normals (B, N, 3) when the config has ``input_normals``."""
+        h, features, neighbours = points, [], None
+        if self.input_normals:  # [x, n] per point; the first graph is that of the 3-D points
+            h, neighbours = torch.cat([points, normals], dim=-1), knn_indices(points, self.edge_convs[0].k)
         for conv in self.edge_convs:
-            h = conv(h)
+            h = conv(h, neighbours)
             features.append(h)
+            neighbours = None  # every later layer builds its graph in feature space
         point_features = torch.cat(features, dim=-1)
         global_feature = self.global_feature(point_features)
         return point_features, global_feature, self.fc_mu(global_feature), self.fc_logvar(global_feature)
@@ -815,9 +835,25 @@ class CuboidAbstractionNet(nn.Module):
         check_finite(points, "points")
         return points
 
-    def encode(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """points (B, N, 3) -> mu, logvar (B, latent_dim) of q(z | points) (Sec. 3.1)."""
-        _, _, mu, logvar = self.embedding(self._check_points(points))
+    def _check_normals(self, normals, points: torch.Tensor) -> torch.Tensor | None:
+        """The normals the encoder reads: (B, N, 3) finite, when the config has ``input_normals``; else None."""
+        if not self.config.input_normals:
+            return None
+        if normals is None:
+            raise ValueError(
+                "this network was trained with ModelConfig.input_normals = True and reads each point's normal: "
+                "pass normals (B, N, 3) beside the points (cuboidlib.normals.estimate_normals makes them)"
+            )
+        normals = as_float_tensor(normals, "normals", dtype=points.dtype, device=points.device)
+        check_shape(normals, tuple(points.shape), "normals")
+        check_finite(normals, "normals")
+        return normals
+
+    def encode(self, points: torch.Tensor, normals: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """points (B, N, 3) [, normals (B, N, 3) with ``input_normals``] -> mu, logvar (B, latent_dim)
+        of q(z | points) (Sec. 3.1)."""
+        points = self._check_points(points)
+        _, _, mu, logvar = self.embedding(points, self._check_normals(normals, points))
         return mu, logvar
 
     def decode(self, z: torch.Tensor) -> CuboidPrediction:
@@ -831,16 +867,20 @@ class CuboidAbstractionNet(nn.Module):
     def forward(
         self,
         points: torch.Tensor,
+        normals: torch.Tensor | None = None,
         sample_latent: bool | None = None,
         generator: torch.Generator | None = None,
     ) -> ModelOutput:
         """points (B, N, 3) with N > k -> :class:`ModelOutput`.
 
+        normals: (B, N, 3) unit normals, read by a network with ``ModelConfig.input_normals`` (required
+            there) and ignored otherwise.
+
         sample_latent: draw z = mu + sigma * n (Eq. (1)) if True, use z = mu if False; None means
             "sample in training mode only". generator: the source of n (default: torch's global one).
         """
         points = self._check_points(points)
-        point_features, global_feature, mu, logvar = self.embedding(points)
+        point_features, global_feature, mu, logvar = self.embedding(points, self._check_normals(normals, points))
         if sample_latent is None:
             sample_latent = self.training
         z = reparameterize(mu, logvar, generator) if sample_latent else mu

@@ -126,14 +126,17 @@ def training_curve(card: dict) -> tuple[list[dict], float, list[float]]:
 
 
 @torch.no_grad()
-def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, batch_size: int = 32):
-    """Cuboid features f^c (K, C) and allocation centroids c_m (K, 3) of the existing cuboids of ``points``."""
+def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, normals: torch.Tensor | None = None,
+                            batch_size: int = 32):
+    """Cuboid features f^c (K, C) and allocation centroids c_m (K, 3) of the existing cuboids of ``points``
+    (S, N, 3); ``normals`` (S, N, 3) for a network that reads them (``ModelConfig.input_normals``)."""
     was_training = model.training
     model.eval()
     try:
         features, centroids = [], []
-        for chunk in points.split(batch_size):
-            out = model(chunk, sample_latent=False)
+        for start in range(0, len(points), batch_size):
+            chunk = points[start:start + batch_size]
+            out = model(chunk, None if normals is None else normals[start:start + batch_size], sample_latent=False)
             exists = out.exist_probs > 0.5
             features.append(out.cuboid_features[exists])
             centroids.append(allocation_weighted_centers(out.W, chunk)[exists])
@@ -151,13 +154,16 @@ def _head_rms(model: CuboidAbstractionNet, features: torch.Tensor, centroids: to
     return float((predicted - centroids).square().sum(dim=-1).mean().sqrt())
 
 
-def translation_head_error(model: CuboidAbstractionNet, points: torch.Tensor) -> float:
+def translation_head_error(model: CuboidAbstractionNet, points: torch.Tensor,
+                           normals: torch.Tensor | None = None) -> float:
     """RMS distance between the predicted translations t_m and the allocation centroids c_m, over the
-    existing cuboids of ``points`` (S, N, 3) (network in evaluation mode, z = mu)."""
-    return _head_rms(model, *_features_and_centroids(model, points))
+    existing cuboids of ``points`` (S, N, 3) (network in evaluation mode, z = mu; ``normals`` (S, N, 3)
+    for a network with ``ModelConfig.input_normals``)."""
+    return _head_rms(model, *_features_and_centroids(model, points, normals))
 
 
-def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridge: float = 1e-5) -> None:
+def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridge: float = 1e-5,
+                         normals: torch.Tensor | None = None) -> None:
     """Fit the translation head of D_cp so that t_m predicts the allocation centroid c_m (in place).
 
     A network trained with the authors' centroid centres (``LossConfig(centers_from_allocation=True)``)
@@ -166,9 +172,10 @@ def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridg
     decoding a latent code alone (generation, interpolation, Sec. 4.4) has no points and needs t_m. With
     every other weight fixed, the head is linear before the tanh, so it is fitted in closed form: ridge
     least squares of atanh(c_m) on [f^c_m, 1] over the existing cuboids (existence > 0.5) of ``points``
-    (S, N, 3), the training shapes. The authors' code has a loss term for this with weight 0.
+    (S, N, 3), the training shapes (with their ``normals`` (S, N, 3) for a network with
+    ``ModelConfig.input_normals``). The authors' code has a loss term for this with weight 0.
     """
-    features, centroids = _features_and_centroids(model, points)
+    features, centroids = _features_and_centroids(model, points, normals)
     if len(features) == 0:
         raise ValueError("no cuboid exists on these shapes; the translation head cannot be fitted")
     x = torch.cat([features, torch.ones(len(features), 1, dtype=features.dtype, device=features.device)], dim=1)
@@ -221,9 +228,9 @@ def publish_run(
     if config.loss_config.centers_from_allocation:
         model = CuboidAbstractionNet(config.model_config)
         model.load_state_dict(state["model"])
-        val = _features_and_centroids(model, splits["val"].points)  # the head's inputs: unchanged by the fit
+        val = _features_and_centroids(model, splits["val"].points, splits["val"].normals)  # unchanged by the fit
         before = _head_rms(model, *val)
-        fit_translation_head(model, splits["train"].points)
+        fit_translation_head(model, splits["train"].points, normals=splits["train"].normals)
         translation = {"fitted_on": f"train split ({len(splits['train'])} shapes), existing cuboids",
                        "method": "ridge least squares of atanh(centroid) on the cuboid features (fit_translation_head)",
                        "rms_error_validation_before": round(before, 5),

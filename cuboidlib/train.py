@@ -314,7 +314,7 @@ def validation_loss(
         for start in range(0, len(shapes), batch_size):
             points = shapes.points[start:start + batch_size].to(device)
             normals = shapes.normals[start:start + batch_size].to(device)
-            out = model(points)
+            out = model(points, normals)
             terms = total_loss(out, points, normals, loss_config, generator=generator)
             values = torch.stack([getattr(terms, k) for k in LOSS_TERMS] + _diagnostics(out))
             sums += values.double().cpu() * points.shape[0]
@@ -626,7 +626,7 @@ class Trainer:
         points = self.train_set.points[index]
         normals = self.train_set.normals[index]
         self.model.segmentation.temperature = self.affinity_temperature(self.step)
-        out = self.net(points, generator=self.latent_generator)
+        out = self.net(points, normals, generator=self.latent_generator)
         bad_outputs = [k for k in _OUTPUTS if not bool(torch.isfinite(getattr(out, k).detach()).all())]
         if bad_outputs:  # the loss would refuse them; all ranks learn of it through the NaN values
             terms = None
