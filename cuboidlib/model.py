@@ -69,6 +69,9 @@ _MAX_WIDTH = 8192
 _MAX_LAYERS = 8
 _MAX_PARAMETERS = 50_000_000
 
+#: The values of ModelConfig.input_normals: what the encoder reads of the normals.
+INPUT_NORMALS = ("none", "differences", "absolute")
+
 # ----------------------------------------------------------------------------------------------
 # Configuration
 # ----------------------------------------------------------------------------------------------
@@ -98,11 +101,13 @@ class ModelConfig(ConfigDict):
         allocation stays softer and a misallocated point keeps a gradient towards other cuboids; the
         argmax, hence the segmentation, does not change with T (default 1: the paper's Eq. (3)).
     negative_slope: slope of every LeakyReLU (public code: 0.2).
-    input_normals: feed each point's unit normal to the first EdgeConv beside its coordinates (6
-        input channels instead of 3; the kNN graph stays that of the 3-D points), so that a point
-        feature knows which way the surface faces. The paper and the public code give the encoder
-        the coordinates alone and use the normals only in the loss (default False); with True the
-        network needs the normals at inference too (``forward(points, normals)``).
+    input_normals: what the first EdgeConv reads of each point's unit normal. "none" (default): the
+        coordinates alone, as in the paper and the public code, which use the normals only in the
+        loss. "differences": the edge feature becomes [x_j - x_i, n_j - n_i, x_i], so a point feature
+        sees where the surface bends (a crease between two parts) but not which way a flat face
+        points. "absolute": [x_j - x_i, n_j - n_i, x_i, n_i], the normal itself too. The kNN graph stays
+        that of the 3-D points; with either of the last two the network needs the normals at
+        inference (``forward(points, normals)``).
 
     ``to_dict`` / ``from_dict`` convert to and from a dict of plain JSON types (for checkpoints).
     """
@@ -120,7 +125,7 @@ class ModelConfig(ConfigDict):
     negative_slope: float = 0.2
     cosine_affinity: float | None = None
     affinity_temperature: float = 1.0
-    input_normals: bool = False
+    input_normals: str = "none"
 
     def __post_init__(self) -> None:
         for name in ("edge_dims", "cuboid_feature_dims"):
@@ -142,9 +147,10 @@ class ModelConfig(ConfigDict):
                 raise ValueError(
                     f"ModelConfig.{name} must be a non-empty sequence of positive integers, got {value!r}"
                 )
-        for name in ("attention_scale", "input_normals"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"ModelConfig.{name} must be True or False, got {getattr(self, name)!r}")
+        if not isinstance(self.attention_scale, bool):
+            raise ValueError(f"ModelConfig.attention_scale must be True or False, got {self.attention_scale!r}")
+        if self.input_normals not in INPUT_NORMALS:
+            raise ValueError(f"ModelConfig.input_normals must be one of {INPUT_NORMALS}, got {self.input_normals!r}")
         cos = self.cosine_affinity
         if cos is not None:
             if isinstance(cos, bool) or not isinstance(cos, (int, float)) or not 0.0 < cos <= 1000.0:
@@ -181,9 +187,10 @@ class ModelConfig(ConfigDict):
     def approximate_parameters(self) -> int:
         """Number of weights of the network's matrices (biases and normalisation left out)."""
         widths, total, prev = self.edge_dims, 0, self.input_dim
+        relative = self.relative_dims
         for w in widths:  # EdgeConv blocks: two 1x1 layers on (x_i, x_j - x_i)
-            total += 2 * prev * w + w * w
-            prev = w
+            total += (2 * prev - relative) * w + w * w
+            prev, relative = w, 0
         total += self.point_feature_dim * self.global_dim + 2 * self.global_dim * self.latent_dim
         chain = (self.latent_dim + self.cuboid_code_dim,) + self.cuboid_feature_dims
         total += sum(a * b for a, b in zip(chain, chain[1:])) + self.num_cuboids * self.cuboid_code_dim
@@ -209,8 +216,14 @@ class ModelConfig(ConfigDict):
 
     @property
     def input_dim(self) -> int:
-        """Channels per point that enter the first EdgeConv: 3 coordinates, plus 3 with ``input_normals``."""
-        return 6 if self.input_normals else 3
+        """Channels per point that enter the first EdgeConv: 3 coordinates, plus the normal's 3 unless
+        ``input_normals`` is "none"."""
+        return 3 if self.input_normals == "none" else 6
+
+    @property
+    def relative_dims(self) -> int:
+        """Trailing input channels of the first EdgeConv that enter only as differences n_j - n_i."""
+        return 3 if self.input_normals == "differences" else 0
 
     @property
     def point_feature_dim(self) -> int:
@@ -275,7 +288,9 @@ class EdgeConv(nn.Module):
     C_out -> C_out, no bias), each followed by BatchNorm over all B*N*k edges and LeakyReLU; the
     output is the max over the k edges. This is the readable version: it builds the explicit
     (B, 2 C_in, N, k) edge tensor. :class:`FastEdgeConv` computes the same function with the same
-    parameters faster; the network uses it unless built with ``fast=False``.
+    parameters faster; the network uses it unless built with ``fast=False``. ``relative_dims`` = r: the
+    last r input channels enter the edge feature only as differences, [x_j - x_i, x_i without them]
+    (2 C_in - r channels; the first layer of a network with ``input_normals="differences"``).
 
     Example::
 
@@ -284,11 +299,14 @@ class EdgeConv(nn.Module):
         torch.Size([2, 1024, 64])
     """
 
-    def __init__(self, in_dim: int, out_dim: int, k: int, negative_slope: float = 0.2):
+    def __init__(self, in_dim: int, out_dim: int, k: int, negative_slope: float = 0.2, relative_dims: int = 0):
         super().__init__()
+        if not 0 <= relative_dims < in_dim:
+            raise ValueError(f"relative_dims must lie in [0, in_dim) = [0, {in_dim}), got {relative_dims}")
         self.in_dim, self.out_dim, self.k = in_dim, out_dim, k
+        self.relative_dims = relative_dims
         self.negative_slope = negative_slope
-        self.conv1 = nn.Linear(2 * in_dim, out_dim, bias=False)
+        self.conv1 = nn.Linear(2 * in_dim - relative_dims, out_dim, bias=False)
         self.bn1 = nn.BatchNorm1d(out_dim)
         self.conv2 = nn.Linear(out_dim, out_dim, bias=False)
         self.bn2 = nn.BatchNorm1d(out_dim)
@@ -306,7 +324,7 @@ class EdgeConv(nn.Module):
         offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
         x_j = x.reshape(batch * n, c)[(nbr + offsets).reshape(-1)].view(batch, n, self.k, c)
         x_i = x.unsqueeze(2).expand(batch, n, self.k, c)
-        edges = torch.cat([x_j - x_i, x_i], dim=-1).permute(0, 3, 1, 2)  # (B, 2C, N, k)
+        edges = torch.cat([x_j - x_i, x_i[..., : c - self.relative_dims]], dim=-1).permute(0, 3, 1, 2)  # (B, 2C - r, N, k)
         h = edges
         for conv, bn in ((self.conv1, self.bn1), (self.conv2, self.bn2)):
             h = F.conv2d(h, conv.weight[:, :, None, None])
@@ -476,8 +494,8 @@ class FastEdgeConv(EdgeConv):
     """
 
     def __init__(self, in_dim: int, out_dim: int, k: int, negative_slope: float = 0.2,
-                 edges_per_chunk: int = _EDGES_PER_CHUNK):
-        super().__init__(in_dim, out_dim, k, negative_slope)
+                 edges_per_chunk: int = _EDGES_PER_CHUNK, relative_dims: int = 0):
+        super().__init__(in_dim, out_dim, k, negative_slope, relative_dims)
         self.edges_per_chunk = edges_per_chunk
 
     def forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
@@ -488,9 +506,10 @@ class FastEdgeConv(EdgeConv):
         W_a, W_b = self.conv1.weight[:, : self.in_dim], self.conv1.weight[:, self.in_dim :]
         # conv1 [x_j - x_i, x_i] = W_a (x_j - c) + (W_b x_i - W_a (x_i - c)) = P_j + Q_i for any c; c =
         # the cloud's mean keeps P and Q small, so that little precision is lost when they cancel.
+        # (W_b reads x_i without its last relative_dims channels.)
         centred = x - x.detach().mean(dim=1, keepdim=True)
         P = (centred @ W_a.T).reshape(rows, self.out_dim)
-        Q = (x @ W_b.T).reshape(rows, self.out_dim) - P
+        Q = (x[..., : self.in_dim - self.relative_dims] @ W_b.T).reshape(rows, self.out_dim) - P
         offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
         flat_nbr = (nbr + offsets).reshape(rows, k)
 
@@ -593,10 +612,12 @@ class FeatureEmbedding(nn.Module):
     def __init__(self, config: ModelConfig, fast: bool = True):
         super().__init__()
         dims = (config.input_dim,) + config.edge_dims
-        self.input_normals = config.input_normals
+        self.input_normals = config.input_normals != "none"
         edge_conv, global_layer = (FastEdgeConv, FastGlobalFeature) if fast else (EdgeConv, GlobalFeature)
         self.edge_convs = nn.ModuleList(
-            edge_conv(dims[i], dims[i + 1], config.k, config.negative_slope) for i in range(len(config.edge_dims))
+            edge_conv(dims[i], dims[i + 1], config.k, config.negative_slope,
+                      relative_dims=config.relative_dims if i == 0 else 0)
+            for i in range(len(config.edge_dims))
         )
         self.global_feature = global_layer(config.point_feature_dim, config.global_dim, config.negative_slope)
         self.fc_mu = nn.Linear(config.global_dim, config.latent_dim)
@@ -837,11 +858,12 @@ class CuboidAbstractionNet(nn.Module):
 
     def _check_normals(self, normals, points: torch.Tensor) -> torch.Tensor | None:
         """The normals the encoder reads: (B, N, 3) finite, when the config has ``input_normals``; else None."""
-        if not self.config.input_normals:
+        if self.config.input_normals == "none":
             return None
         if normals is None:
             raise ValueError(
-                "this network was trained with ModelConfig.input_normals = True and reads each point's normal: "
+                f"this network was trained with ModelConfig.input_normals = {self.config.input_normals!r} and reads "
+                "each point's normal: "
                 "pass normals (B, N, 3) beside the points (cuboidlib.normals.estimate_normals makes them)"
             )
         normals = as_float_tensor(normals, "normals", dtype=points.dtype, device=points.device)
