@@ -324,7 +324,8 @@ class EdgeConv(nn.Module):
         offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
         x_j = x.reshape(batch * n, c)[(nbr + offsets).reshape(-1)].view(batch, n, self.k, c)
         x_i = x.unsqueeze(2).expand(batch, n, self.k, c)
-        edges = torch.cat([x_j - x_i, x_i[..., : c - self.relative_dims]], dim=-1).permute(0, 3, 1, 2)  # (B, 2C - r, N, k)
+        x_i_kept = x_i[..., : c - self.relative_dims]  # the last relative_dims channels enter as differences only
+        edges = torch.cat([x_j - x_i, x_i_kept], dim=-1).permute(0, 3, 1, 2)  # (B, 2C - r, N, k)
         h = edges
         for conv, bn in ((self.conv1, self.bn1), (self.conv2, self.bn2)):
             h = F.conv2d(h, conv.weight[:, :, None, None])
@@ -603,7 +604,7 @@ class FeatureEmbedding(nn.Module):
 
     forward(points (B, N, 3), normals (B, N, 3) or None) -> (point_features (B, N, sum(edge_dims)),
     global_feature (B, global_dim), mu (B, latent_dim), logvar (B, latent_dim)). The first EdgeConv
-    reads the coordinates (and, with ``input_normals``, the normals beside them) and uses the kNN graph
+    reads the coordinates (and the normals beside them unless ``input_normals`` is "none") and uses the kNN graph
     of the 3-D points, each later one recomputes it in the previous layer's feature space.
     ``fast=False`` builds the readable :class:`EdgeConv` / :class:`GlobalFeature` instead of their
     fast versions (same parameters and results, slower).
@@ -626,7 +627,7 @@ class FeatureEmbedding(nn.Module):
     def forward(
         self, points: torch.Tensor, normals: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """points (B, N, 3), and normals (B, N, 3) when the config has ``input_normals``."""
+        """points (B, N, 3), and normals (B, N, 3) unless the config's ``input_normals`` is "none"."""
         h, features, neighbours = points, [], None
         if self.input_normals:  # [x, n] per point; the first graph is that of the 3-D points
             h, neighbours = torch.cat([points, normals], dim=-1), knn_indices(points, self.edge_convs[0].k)
@@ -857,7 +858,7 @@ class CuboidAbstractionNet(nn.Module):
         return points
 
     def _check_normals(self, normals, points: torch.Tensor) -> torch.Tensor | None:
-        """The normals the encoder reads: (B, N, 3) finite, when the config has ``input_normals``; else None."""
+        """The normals the encoder reads, (B, N, 3) and finite; None when ``input_normals`` is "none"."""
         if self.config.input_normals == "none":
             return None
         if normals is None:
@@ -872,8 +873,8 @@ class CuboidAbstractionNet(nn.Module):
         return normals
 
     def encode(self, points: torch.Tensor, normals: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """points (B, N, 3) [, normals (B, N, 3) with ``input_normals``] -> mu, logvar (B, latent_dim)
-        of q(z | points) (Sec. 3.1)."""
+        """points (B, N, 3) [, normals (B, N, 3) for a network that reads them, ``input_normals``] -> mu,
+        logvar (B, latent_dim) of q(z | points) (Sec. 3.1)."""
         points = self._check_points(points)
         _, _, mu, logvar = self.embedding(points, self._check_normals(normals, points))
         return mu, logvar
@@ -895,8 +896,8 @@ class CuboidAbstractionNet(nn.Module):
     ) -> ModelOutput:
         """points (B, N, 3) with N > k -> :class:`ModelOutput`.
 
-        normals: (B, N, 3) unit normals, read by a network with ``ModelConfig.input_normals`` (required
-            there) and ignored otherwise.
+        normals: (B, N, 3) unit normals, read (and required) when ``ModelConfig.input_normals`` is
+            "differences" or "absolute", ignored when it is "none".
 
         sample_latent: draw z = mu + sigma * n (Eq. (1)) if True, use z = mu if False; None means
             "sample in training mode only". generator: the source of n (default: torch's global one).

@@ -149,8 +149,7 @@ COURSE_SCALE = {
             "about 26 points; the paper's 5 % of the points would rule out every chair leg, about 4 % each); cuboid centres at the allocation-weighted centroid of "
             "their points, as in the authors' code",
     "same_as": "data_samples/checkpoints/configs/<category>.json (the committed checkpoints) except the number of "
-               "shapes (the checkpoints: 1000), the batch size and the encoder's input: the coordinates alone, as "
-               "in the paper (the checkpoints also read the normals, model.input_normals)",
+               "shapes (the checkpoints: 1000) and the batch size",
 }
 
 #: Batch size of the experiment runs: half the checkpoints' 16 halves the time per step; with both, the
@@ -183,15 +182,14 @@ def course_config(category: str, steps: int, **changes) -> TrainConfig:
 
     The committed network's recipe (:func:`cuboidlib.train.course_config`, read from
     ``data_samples/checkpoints/configs/<category>.json``), so experiments and checkpoints cannot drift
-    apart, with one exception: the encoder reads the coordinates alone, as in the paper
-    (``input_normals=False``), so that the ablations of Tables 3-6 vary the paper's network. The step budget replaces the file's (no time budget: runs are repeatable);
+    apart. The step budget replaces the file's (no time budget: runs are repeatable);
     validation (model selection) every 100 steps and at the end; one checkpoint at the end.
     ``changes`` replace fields (``model`` / ``loss`` dicts are merged, see ``TrainConfig.replace``).
     """
     if category not in COURSE_NUM_CUBOIDS:
         raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
     base = train_course_config(category, max_steps=steps, max_minutes=None, checkpoint_every=steps,
-                               validate_every=min(100, steps), model={"input_normals": False})
+                               validate_every=min(100, steps))
     return base.replace(**changes) if changes else base
 
 
@@ -462,12 +460,20 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
 #: TrainConfig fields added after trainings were first shared; left out of :func:`training_key` while they keep
 #: their defaults, so that the trainings made before them keep their keys.
 KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps", "selection")
+#: The same for fields of the model section.
+KEY_NEUTRAL_MODEL_FIELDS = ("input_normals",)
 
 
 def _without_neutral_defaults(config: dict) -> dict:
-    """A config dict without the :data:`KEY_NEUTRAL_FIELDS` that are absent or at their defaults."""
+    """A config dict without the :data:`KEY_NEUTRAL_FIELDS` (and :data:`KEY_NEUTRAL_MODEL_FIELDS` of its
+    model section) that are absent or at their defaults."""
     defaults = TrainConfig().to_dict()
-    return {k: v for k, v in config.items() if k not in KEY_NEUTRAL_FIELDS or v != defaults[k]}
+    out = {k: v for k, v in config.items() if k not in KEY_NEUTRAL_FIELDS or v != defaults[k]}
+    if isinstance(out.get("model"), dict):
+        model_defaults = defaults["model"]
+        out["model"] = {k: v for k, v in out["model"].items()
+                        if k not in KEY_NEUTRAL_MODEL_FIELDS or v != model_defaults[k]}
+    return out
 
 
 def training_key(run: Run) -> str:

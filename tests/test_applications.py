@@ -342,3 +342,38 @@ def test_missing_and_unreadable_checkpoints_raise_clear_errors(tmp_path, monkeyp
     junk.write_bytes(b"ply\nthis is not a checkpoint")
     with pytest.raises(ValueError, match="junk.pt: not a readable cuboidlib checkpoint"):
         load_trained_model(junk)
+
+
+# ----------------------------------------------------------------------------------------------
+# A network that reads the normals (ModelConfig.input_normals)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def normals_model() -> CuboidAbstractionNet:
+    torch.manual_seed(0)
+    return CuboidAbstractionNet(ModelConfig(**{**TINY.to_dict(), "input_normals": "differences"}))
+
+
+def _unit(points: torch.Tensor, seed: int = 2) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.nn.functional.normalize(torch.randn(points.shape, generator=g), dim=-1)
+
+
+def test_applications_pass_the_normals_to_a_network_that_reads_them(normals_model, clouds):
+    normals = _unit(clouds)
+    out = abstract_shapes(normals_model, clouds, normals=normals)
+    with torch.no_grad():
+        expected = normals_model.eval()(clouds, normals, sample_latent=False)
+    torch.testing.assert_close(out.W, expected.W)
+    batched = abstract_shapes(normals_model, clouds, normals=normals, batch_size=1)  # chunks keep their normals
+    torch.testing.assert_close(batched.W, out.W)
+    one = abstract_shapes(normals_model, clouds[1], normals=normals[1])  # one cloud (N, 3) with its (N, 3) normals
+    torch.testing.assert_close(one.W[0], out.W[1])
+    torch.testing.assert_close(encode_shapes(normals_model, clouds, normals), expected.mu)
+    path = interpolate_latents(normals_model, clouds[0], clouds[1], steps=3, normals_a=normals[0], normals_b=normals[1])
+    torch.testing.assert_close(path.shapes.z[0], expected.mu[0])
+    with pytest.raises(ValueError, match="reads each point's normal: pass normals"):
+        abstract_shapes(normals_model, clouds)
+    with pytest.raises(ValueError, match="reads each point's normal: pass normals"):
+        interpolate_latents(normals_model, clouds[0], clouds[1])

@@ -417,17 +417,21 @@ def test_a_training_key_ignores_fields_added_later_while_they_keep_their_default
     config = runner.Scale(True, 2, 12, (0,)).config("chair")
     run = runner.Run("a", {"seed": 0}, config)
     legacy = {k: v for k, v in config.to_dict().items() if k not in runner.KEY_NEUTRAL_FIELDS}
+    legacy["model"] = {k: v for k, v in legacy["model"].items() if k not in runner.KEY_NEUTRAL_MODEL_FIELDS}
     # the key of the same configuration written before those fields existed
     expected = hashlib.sha256(json.dumps([legacy, 0.0], sort_keys=True).encode()).hexdigest()[:16]
     assert runner.training_key(run) == expected
     warm = runner.Run("b", {"seed": 0}, config.replace(temperature_start=5.0, temperature_steps=10))
     assert runner.training_key(warm) != expected
+    normals = runner.Run("c", {"seed": 0}, config.replace(model={"input_normals": "differences"}))
+    assert runner.training_key(normals) != expected
 
 
 def test_a_record_written_before_fields_were_added_is_still_a_finished_run(tmp_path):
     config = runner.Scale(True, 2, 12, (0,)).config("chair")
     run = runner.Run("a", {"seed": 0}, config)
     legacy = {k: v for k, v in config.to_dict().items() if k not in runner.KEY_NEUTRAL_FIELDS}
+    legacy["model"] = {k: v for k, v in legacy["model"].items() if k not in runner.KEY_NEUTRAL_MODEL_FIELDS}
     record = {"status": "ok", "name": "a", "task": run.task, "config": legacy, "options": {}}
     (tmp_path / runner.RECORD_FILE).write_text(json.dumps(record))
     assert runner.finished_record(run, tmp_path) == record

@@ -68,7 +68,7 @@ def _readable_copy(fast):
     if isinstance(fast, CuboidAbstractionNet):
         readable = CuboidAbstractionNet(fast.config, fast=False)
     elif isinstance(fast, FastEdgeConv):
-        readable = EdgeConv(fast.in_dim, fast.out_dim, fast.k, fast.negative_slope)
+        readable = EdgeConv(fast.in_dim, fast.out_dim, fast.k, fast.negative_slope, fast.relative_dims)
     else:
         readable = GlobalFeature(fast.linear.in_features, fast.linear.out_features, fast.negative_slope)
     readable = readable.to(next(fast.parameters()).dtype)
@@ -533,3 +533,121 @@ def test_knn_indices_stay_valid_for_non_finite_features():
     x[1] = float("nan")  # a whole diverged cloud
     idx = knn_indices(x, 5)
     assert idx.shape == (2, 20, 5) and int(idx.min()) >= 0 and int(idx.max()) < 20
+
+
+# ----------------------------------------------------------------------------------------------
+# The option input_normals: the encoder reads the normals (their differences, or themselves too)
+# ----------------------------------------------------------------------------------------------
+
+DIFFERENCES = ModelConfig(**{**SMALL.to_dict(), "input_normals": "differences"})
+ABSOLUTE = ModelConfig(**{**SMALL.to_dict(), "input_normals": "absolute"})
+
+
+def _normals(points, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    return torch.nn.functional.normalize(torch.randn(points.shape, generator=g, dtype=points.dtype), dim=-1)
+
+
+@pytest.mark.parametrize("config, in_features", [(SMALL, 2 * 3), (DIFFERENCES, 2 * 3 + 3), (ABSOLUTE, 2 * 6)])
+def test_input_normals_widens_only_the_first_edgeconv(config, in_features):
+    net = _net(config)
+    assert net.embedding.edge_convs[0].conv1.in_features == in_features
+    assert net.embedding.edge_convs[1].conv1.in_features == 2 * SMALL.edge_dims[0]
+    extra = sum(p.numel() for p in net.parameters()) - sum(p.numel() for p in _net(SMALL).parameters())
+    assert extra == (in_features - 6) * SMALL.edge_dims[0]
+    assert config.approximate_parameters() - SMALL.approximate_parameters() == extra
+
+
+@pytest.mark.parametrize("config", [DIFFERENCES, ABSOLUTE], ids=["differences", "absolute"])
+def test_first_layer_reads_the_edge_feature_by_hand_on_the_graph_of_the_points(config):
+    net = _net(config, dtype=torch.float64).eval()
+    points = _points(dtype=torch.float64)
+    normals = _normals(points)
+    features = net.embedding(points, normals)[0]
+    conv0 = net.embedding.edge_convs[0]
+    nbr = knn_indices(points, conv0.k)  # the graph of the 3-D points
+    n_j = torch.stack([normals[b][nbr[b]] for b in range(len(points))])  # (B, N, k, 3)
+    x_j = torch.stack([points[b][nbr[b]] for b in range(len(points))])
+    x_i, n_i = points.unsqueeze(2).expand_as(x_j), normals.unsqueeze(2).expand_as(n_j)
+    parts = [x_j - x_i, n_j - n_i, x_i] + ([n_i] if config.input_normals == "absolute" else [])
+    h = torch.cat(parts, dim=-1)
+    for conv, bn in ((conv0.conv1, conv0.bn1), (conv0.conv2, conv0.bn2)):
+        h = (conv(h) - bn.running_mean) / torch.sqrt(bn.running_var + bn.eps) * bn.weight + bn.bias  # evaluation mode
+        h = torch.nn.functional.leaky_relu(h, conv0.negative_slope)
+    torch.testing.assert_close(features[..., : conv0.out_dim], h.amax(dim=2), atol=1e-12, rtol=1e-10)
+
+
+@pytest.mark.parametrize("config", [DIFFERENCES, ABSOLUTE], ids=["differences", "absolute"])
+def test_input_normals_fast_path_equals_readable_path_values_and_gradients(config):
+    net = _net(config, dtype=torch.float64)
+    _randomise_batchnorms(net)
+    ref = _readable_copy(net)
+    points = _points(dtype=torch.float64)
+    normals = _normals(points)
+    out, out_ref = net(points, normals, sample_latent=False), ref(points, normals, sample_latent=False)
+    for name in ("W", "centers", "exist_logits", "mu", "point_features"):
+        torch.testing.assert_close(getattr(out, name), getattr(out_ref, name), atol=1e-11, rtol=1e-9)
+    _loss(out).backward()
+    _loss(out_ref).backward()
+    _assert_same_module_state(net, ref, atol=1e-10)
+
+
+@pytest.mark.parametrize("config", [DIFFERENCES, ABSOLUTE], ids=["differences", "absolute"])
+def test_input_normals_gradcheck_through_the_normals(config):
+    net = _net(config, dtype=torch.float64).eval()
+    points = _points(batch=1, n=12, dtype=torch.float64)
+    normals = _normals(points).requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda n: net(points, n, sample_latent=False).W, (normals,))
+
+
+def test_differences_cannot_see_which_way_a_face_points_absolute_can():
+    # n_j - n_i is unchanged when every normal moves by the same vector: on a flat face (all normals
+    # equal) the point features do not depend on the face's orientation, so the allocation cannot
+    # sort points by the direction they face (which would let thin plates fit them, Fig. 2).
+    points = _points()
+    normals = _normals(points)
+    shifted = normals + torch.tensor([0.3, -0.7, 0.2])
+    differences, absolute = _net(DIFFERENCES).eval(), _net(ABSOLUTE).eval()
+    for name in ("point_features", "W", "centers"):
+        torch.testing.assert_close(getattr(differences(points, shifted), name), getattr(differences(points, normals), name),
+                                   atol=1e-5, rtol=1e-4)
+    assert (absolute(points, shifted).point_features - absolute(points, normals).point_features).abs().max() > 0.1
+
+
+def test_normals_change_the_output_only_of_a_network_that_reads_them():
+    points = _points()
+    normals, other = _normals(points), _normals(points, seed=5)
+    plain = _net(SMALL).eval()
+    torch.testing.assert_close(plain(points, normals).W, plain(points).W, rtol=0, atol=0)
+    for config in (DIFFERENCES, ABSOLUTE):
+        reading = _net(config).eval()
+        assert (reading(points, normals).point_features - reading(points, other).point_features).abs().max() > 0.1
+
+
+def test_input_normals_config_round_trips_and_old_configs_read_none():
+    data = json.loads(json.dumps(DIFFERENCES.to_dict()))
+    assert data["input_normals"] == "differences" and ModelConfig.from_dict(data) == DIFFERENCES
+    old = SMALL.to_dict()
+    del old["input_normals"]  # a checkpoint written before the option
+    assert ModelConfig.from_dict(old).input_normals == "none"
+    with pytest.raises(ValueError, match=r"input_normals must be one of \('none', 'differences', 'absolute'\), got True"):
+        ModelConfig(input_normals=True)
+    with pytest.raises(ValueError, match=r"relative_dims must lie in \[0, in_dim\) = \[0, 3\), got 3"):
+        EdgeConv(3, 8, k=4, relative_dims=3)
+
+
+@pytest.mark.parametrize(
+    "normals, match",
+    [
+        (None, r"input_normals = 'differences' and reads each point's normal: pass normals \(B, N, 3\)"),
+        (torch.zeros(3, 64, 2), r"normals must have shape \(3, 64, 3\)"),
+        (torch.zeros(3, 63, 3), r"normals must have shape \(3, 64, 3\)"),
+        (torch.full((3, 64, 3), math.nan), "normals contains 576 NaN or infinite value"),
+    ],
+)
+def test_network_reading_normals_rejects_missing_or_bad_normals(normals, match):
+    net = _net(DIFFERENCES)
+    with pytest.raises(ValueError, match=match):
+        net(_points(), normals)
+    with pytest.raises(ValueError, match=match):
+        net.encode(_points(), normals)

@@ -718,6 +718,39 @@ def test_release_of_a_centroid_network_fits_its_translation_head(tmp_path, tiny)
     assert sorted(changed) == ["abstraction.D_cp.translation.bias", "abstraction.D_cp.translation.weight"]
 
 
+def test_a_network_that_reads_normals_trains_releases_and_abstracts_a_file(tmp_path, tiny):
+    # ModelConfig.input_normals end to end: training, validation, the translation-head fit and the
+    # test evaluation of the release, then the one pipeline on a mesh file (normals from the file).
+    import cuboidlib
+    from cuboidlib.release import publish_run, read_card, translation_head_error
+
+    config, splits = tiny
+    model = {**TINY_MODEL.to_dict(), "input_normals": "differences"}
+    config = config.replace(model=model, loss=LossConfig.authors_code().to_dict(), max_steps=6)
+    cfg = config.save_json(tmp_path / "c.json")
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    # a tiny network after 6 steps may switch every cuboid off; the release needs existing ones
+    best = tmp_path / "run" / "best.pt"
+    state = torch.load(best, weights_only=True)
+    bias = [k for k in state["model"] if k.startswith("abstraction.D_cp.existence.") and k.endswith(".bias")][-1]
+    state["model"][bias].fill_(5.0)
+    torch.save(state, best)
+    dest = tmp_path / "chair.pt"
+    publish_run(tmp_path / "run", dest, command="cuboidlib train (test)")
+    card = read_card(dest)
+    assert card["config"]["model"]["input_normals"] == "differences"
+    released, _ = load_model(dest)
+    assert released.embedding.edge_convs[0].conv1.in_features == 9
+    error = translation_head_error(released, splits["val"].points, splits["val"].normals)
+    assert error == pytest.approx(card["translation_head"]["rms_error_validation_after"], abs=1e-5)
+    with pytest.raises(ValueError, match="reads each point's normal"):
+        translation_head_error(released, splits["val"].points)
+    mesh = Path(__file__).resolve().parents[1] / "data_samples" / "meshes" / "chair_0.ply"
+    for up in ("y", None, "auto"):  # as given, with the orientation check, and in all 24 frames
+        result = cuboidlib.abstract(mesh, model=dest, n_points=96, up=up)
+        assert result.labels.shape == (96,) and result.numpy()["centers"].shape[1] == 3
+
+
 def test_cli_release_refuses_a_bad_file_name_before_training(tmp_path, tiny, capsys):
     config, _ = tiny
     cfg = config.replace(max_steps=2).save_json(tmp_path / "c.json")
