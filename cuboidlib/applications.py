@@ -176,7 +176,7 @@ def encode_shapes(model: CuboidAbstractionNet, points, normals=None) -> torch.Te
     """Latent means mu (B, latent_dim) of point clouds (B, N, 3) or one cloud (N, 3) (Sec. 3.1).
 
     The points must be normalised like the training shapes (:mod:`cuboidlib.normalization`).
-    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals``).
+    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals`` not "none").
     """
     with _evaluating(model):
         mu, _ = model.encode(_as_batch(points, "points"), _normals_like(normals, points))
@@ -205,7 +205,7 @@ def abstract_shapes(
     time (evaluation mode: the result does not depend on the batching). ``centers_from_allocation``
     places every cuboid at the allocation-weighted centroid of its points
     (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained that way.
-    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals``).
+    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals`` not "none").
     Returns :class:`AbstractionBatch` with labels (B, N) (argmax of W over the existing cuboids) and W.
     The existence vectors ``cuboids.exists`` of a collection are what :func:`cluster_by_existence` groups.
     """
@@ -322,7 +322,8 @@ def interpolate_latents(
     points_a, points_b: (N, 3) each (the two may have different N), normalised. mu_a and mu_b are
     encoded one shape at a time, then :func:`interpolate_codes` decodes the line between them: the
     first step equals ``decode_latents(model, mu_a)`` and the last ``decode_latents(model, mu_b)``.
-    normals_a, normals_b: their normals (N, 3), for a network with ``ModelConfig.input_normals``.
+    normals_a, normals_b: their normals (N, 3), for a network that reads them (``ModelConfig.input_normals``
+    not "none").
     """
     mu_a = encode_shapes(model, _single(points_a, "points_a"), normals_a)
     mu_b = encode_shapes(model, _single(points_b, "points_b"), normals_b)

@@ -129,7 +129,7 @@ def training_curve(card: dict) -> tuple[list[dict], float, list[float]]:
 def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, normals: torch.Tensor | None = None,
                             batch_size: int = 32):
     """Cuboid features f^c (K, C) and allocation centroids c_m (K, 3) of the existing cuboids of ``points``
-    (S, N, 3); ``normals`` (S, N, 3) for a network that reads them (``ModelConfig.input_normals``)."""
+    (S, N, 3); ``normals`` (S, N, 3) for a network that reads them (``ModelConfig.input_normals`` not "none")."""
     was_training = model.training
     model.eval()
     try:
@@ -158,7 +158,7 @@ def translation_head_error(model: CuboidAbstractionNet, points: torch.Tensor,
                            normals: torch.Tensor | None = None) -> float:
     """RMS distance between the predicted translations t_m and the allocation centroids c_m, over the
     existing cuboids of ``points`` (S, N, 3) (network in evaluation mode, z = mu; ``normals`` (S, N, 3)
-    for a network with ``ModelConfig.input_normals``)."""
+    for a network that reads them, ``ModelConfig.input_normals`` not "none")."""
     return _head_rms(model, *_features_and_centroids(model, points, normals))
 
 
@@ -173,7 +173,7 @@ def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridg
     every other weight fixed, the head is linear before the tanh, so it is fitted in closed form: ridge
     least squares of atanh(c_m) on [f^c_m, 1] over the existing cuboids (existence > 0.5) of ``points``
     (S, N, 3), the training shapes (with their ``normals`` (S, N, 3) for a network with
-    ``ModelConfig.input_normals``). The authors' code has a loss term for this with weight 0.
+    ``ModelConfig.input_normals`` not "none"). The authors' code has a loss term for this with weight 0.
     """
     features, centroids = _features_and_centroids(model, points, normals)
     if len(features) == 0:
