@@ -53,6 +53,7 @@ __all__ = [
     "ShapeAbstraction",
     "CuboidSegmentation",
     "allocation_saturation",
+    "read_normals_from_start",
     "CuboidPrediction",
     "ModelOutput",
     "CuboidAbstractionNet",
@@ -818,6 +819,39 @@ class ModelOutput(CuboidPrediction):
     def segmentation(self) -> torch.Tensor:
         """Cuboid label of every point, argmax over M of W, (B, N) int64 (Sec. 3.3)."""
         return self.W.argmax(dim=-1)
+
+
+def read_normals_from_start(state: dict[str, torch.Tensor], input_normals: str) -> dict[str, torch.Tensor]:
+    """The weights of a network that reads coordinates only, as those of one that also reads the normals.
+
+    ``state``: the state dict of a network with ``input_normals="none"``, whose first EdgeConv reads the
+    edge feature [p_j - p_i, p_i] (``conv1.weight`` of shape (C, 6)). Returned: a copy for the same
+    network with ``input_normals`` = "differences" (edge feature [p_j - p_i, n_j - n_i, p_i], weight
+    (C, 9)) or "absolute" ([p_j - p_i, n_j - n_i, p_i, n_i], (C, 12)); the columns of the normal channels
+    are zero, so that the new network computes exactly the old one's function until training moves them.
+    A second training stage uses it to start reading normals from a first stage that did not.
+
+    Example::
+
+        >>> old = CuboidAbstractionNet(ModelConfig.small())
+        >>> new = CuboidAbstractionNet(ModelConfig.small(input_normals="differences"))
+        >>> new.load_state_dict(read_normals_from_start(old.state_dict(), "differences"))
+        <All keys matched successfully>
+    """
+    if input_normals not in INPUT_NORMALS[1:]:
+        raise ValueError(f"input_normals must be one of {INPUT_NORMALS[1:]}, got {input_normals!r}")
+    key = "embedding.edge_convs.0.conv1.weight"
+    if key not in state:
+        raise ValueError(f"the state dict has no {key!r}: it is not that of a CuboidAbstractionNet")
+    weight = state[key]
+    if weight.dim() != 2 or weight.shape[1] != 6:
+        raise ValueError(f"{key} has shape {tuple(weight.shape)}; a network that reads coordinates only has "
+                         f"(C, 6) there")
+    zeros = weight.new_zeros(weight.shape[0], 3)
+    columns = [weight[:, :3], zeros, weight[:, 3:]] + ([zeros] if input_normals == "absolute" else [])
+    widened = dict(state)
+    widened[key] = torch.cat(columns, dim=1)
+    return widened
 
 
 class CuboidAbstractionNet(nn.Module):

@@ -62,7 +62,7 @@ from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
 from .config import ConfigDict, derive_seed, read_config_file, resolve_device
 from .dataset import ShapeSet, load_splits
 from .losses import LossConfig, total_loss
-from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation
+from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation, read_normals_from_start
 from .shapes import CATEGORIES
 
 __all__ = [
@@ -498,15 +498,21 @@ class Trainer:
         """Start from the weights of the checkpoint ``path``.
 
         The model configuration must match, except ``affinity_temperature``, which changes no
-        weight: a second stage may soften the allocation of the first one.
+        weight: a second stage may soften the allocation of the first one; and ``input_normals``
+        where the checkpoint's is "none": a second stage may start reading the normals, with zero
+        weights on them at first (:func:`cuboidlib.model.read_normals_from_start`).
         """
         state = load_checkpoint(path)
         stored = ModelConfig.from_dict(state["config"]["model"]).to_dict()
         requested = ModelConfig.from_dict(self.config.model).to_dict()
         for name in _WEIGHT_NEUTRAL:
             stored.pop(name), requested.pop(name)
+        weights = state["model"]
+        if stored["input_normals"] == "none" and requested["input_normals"] != "none":
+            weights = read_normals_from_start(weights, requested["input_normals"])
+            stored["input_normals"] = requested["input_normals"]
         check_config_matches(stored, requested, f"model config of init_from {path}")
-        self.model.load_state_dict(state["model"], strict=True)
+        self.model.load_state_dict(weights, strict=True)
 
     def learning_rate(self, step: int) -> float:
         """The rate of optimiser step ``step`` (0-based): constant, or a half cosine over the run."""
