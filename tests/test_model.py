@@ -15,6 +15,7 @@ from torch.func import functional_call
 
 from cuboidlib import model as model_module
 from cuboidlib.model import (
+    read_normals_from_start,
     CuboidAbstractionNet,
     CuboidSegmentation,
     EdgeConv,
@@ -634,6 +635,37 @@ def test_input_normals_config_round_trips_and_old_configs_read_none():
         ModelConfig(input_normals=True)
     with pytest.raises(ValueError, match=r"relative_dims must lie in \[0, in_dim\) = \[0, 3\), got 3"):
         EdgeConv(3, 8, k=4, relative_dims=3)
+
+
+@pytest.mark.parametrize("config", [DIFFERENCES, ABSOLUTE], ids=["differences", "absolute"])
+def test_read_normals_from_start_computes_the_coordinates_only_function_then_learns_the_normals(config):
+    plain = _net(SMALL, dtype=torch.float64)
+    _randomise_batchnorms(plain)
+    reading = _net(config, seed=3, dtype=torch.float64)
+    reading.load_state_dict(read_normals_from_start(plain.state_dict(), config.input_normals))
+    points = _points(dtype=torch.float64)
+    normals = _normals(points)
+    for train in (False, True):  # running statistics and batch statistics
+        plain.train(train), reading.train(train)
+        a, b = plain(points, sample_latent=False), reading(points, normals, sample_latent=False)
+        for name in ("W", "centers", "half_sizes", "exist_logits", "point_features"):
+            torch.testing.assert_close(getattr(b, name), getattr(a, name), rtol=1e-12, atol=1e-12, msg=name)
+    weight = reading.embedding.edge_convs[0].conv1.weight
+    b.W.square().sum().backward()
+    normal_columns = [3, 4, 5] + ([9, 10, 11] if config.input_normals == "absolute" else [])
+    assert weight[:, normal_columns].abs().max() == 0 and weight.grad[:, normal_columns].abs().max() > 0
+    before = plain.state_dict()
+    assert before["embedding.edge_convs.0.conv1.weight"].shape == (SMALL.edge_dims[0], 6)  # the input is not changed
+
+
+def test_read_normals_from_start_rejects_what_it_cannot_widen():
+    state = _net(SMALL).state_dict()
+    with pytest.raises(ValueError, match=r"input_normals must be one of \('differences', 'absolute'\), got 'none'"):
+        read_normals_from_start(state, "none")
+    with pytest.raises(ValueError, match=r"has shape \(8, 9\); a network that reads coordinates only has \(C, 6\)"):
+        read_normals_from_start(_net(DIFFERENCES).state_dict(), "absolute")
+    with pytest.raises(ValueError, match="it is not that of a CuboidAbstractionNet"):
+        read_normals_from_start({"weight": torch.zeros(2, 6)}, "differences")
 
 
 @pytest.mark.parametrize(

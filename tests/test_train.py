@@ -312,6 +312,26 @@ def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
         Trainer(config.replace(init_from=str(tmp_path / "missing.pt")), tmp_path / "fourth", quiet=True, splits=splits)
 
 
+def test_init_from_a_coordinates_only_run_may_start_reading_the_normals(tmp_path, tiny):
+    config, splits = tiny
+    Trainer(config.replace(max_steps=2), tmp_path / "first", quiet=True, splits=splits).run()
+    first = _weights(tmp_path / "first" / "best.pt")
+    second = Trainer(config.replace(init_from=str(tmp_path / "first" / "best.pt"),
+                                    model={"input_normals": "differences"}), tmp_path / "second", quiet=True,
+                     splits=splits)
+    widened = second.model.state_dict()
+    key = "embedding.edge_convs.0.conv1.weight"
+    torch.testing.assert_close(widened[key][:, [0, 1, 2, 6, 7, 8]], first[key], rtol=0, atol=0)
+    assert widened[key][:, 3:6].abs().max() == 0
+    _assert_same_state({k: v for k, v in first.items() if k != key}, {k: v for k, v in widened.items() if k != key})
+    second.run()  # trains with the normals
+    Trainer(config.replace(max_steps=2, model={"input_normals": "differences"}), tmp_path / "third", quiet=True,
+            splits=splits).run()
+    with pytest.raises(CheckpointMismatch, match=r"input_normals: checkpoint has 'differences', requested 'none'"):
+        Trainer(config.replace(init_from=str(tmp_path / "third" / "best.pt")), tmp_path / "fourth", quiet=True,
+                splits=splits)
+
+
 def test_snapshots_are_the_weights_of_one_uninterrupted_run_and_a_second_call_reuses_them(tmp_path, tiny, monkeypatch):
     config, splits = tiny
     result, snaps = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
