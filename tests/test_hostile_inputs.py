@@ -197,12 +197,12 @@ def test_identical_points_are_refused_by_fitting_and_the_baseline():
 
 
 def test_the_network_refuses_unnormalised_points(chair):
-    model, _, _ = load_trained_model("table")
-    p = torch.as_tensor(chair.points)
-    abstract_shapes(model, p)  # normalised: fine
+    model, _, _ = load_trained_model("table")  # a network that reads the normals too
+    p, n = torch.as_tensor(chair.points), torch.as_tensor(chair.normals)
+    abstract_shapes(model, p, normals=n)  # normalised: fine
     for bad, what in ((p * 100, "diagonal 100"), (p + 5, "centre 8.66")):
         with pytest.raises(ValueError, match=f"not normalised like the training shapes .*{what}"):
-            abstract_shapes(model, bad)
+            abstract_shapes(model, bad, normals=n)
 
 
 def test_normal_consistency_refuses_zero_normals(chair):
