@@ -14,6 +14,18 @@ depend on the shapes).
 results). ``--profile`` prints a torch.profiler table of one
 step per configuration.
 
+``--floor`` times, beside each step, the work that every implementation of this step has to do: the
+kNN graphs of the EdgeConv layers (pairwise distances and the top-k selection,
+``cuboidlib.neighbors.knn_indices``; the authors' code also selects with ``torch.topk``) and the
+matrix products, chunk by chunk as ``FastEdgeConv`` runs them: the per-edge layer's forward product
+and the two products of its gradient (with respect to its input and to its weights) in each EdgeConv,
+and the global feature's linear layer. Everything else in a step is elementwise work, gathers,
+scatters and small layers, which a fused kernel could fold into the products' memory traffic. The sum
+is a lower bound for the step of any implementation that builds the graphs with ``torch.topk`` and
+computes the layers with matrix products. (``FastEdgeConv`` does one product more per chunk than the
+bound counts: its backward pass recomputes the forward product instead of storing (B, N, k, C)
+tensors.)
+
 Example::
 
     python benchmarks/bench_model.py --batch 32 --points 1024 4096 --repeats 7
@@ -34,6 +46,7 @@ import torch.nn.functional as F
 
 from cuboidlib.losses import LossConfig, total_loss
 from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
+from cuboidlib.neighbors import knn_indices
 
 
 def run_worker(spec: dict) -> dict:
@@ -85,6 +98,55 @@ def run_worker(spec: dict) -> dict:
     return result
 
 
+def floor_worker(spec: dict) -> dict:
+    """Median seconds of the kNN graphs and of the matrix products of one step (see ``--floor``)."""
+    if spec["threads"]:
+        torch.set_num_threads(spec["threads"])
+    config = ModelConfig(num_cuboids=spec["cuboids"]) if spec["config"] == "paper" else ModelConfig.small(
+        num_cuboids=spec["cuboids"]
+    )
+    batch, n, k = spec["batch"], spec["points"], config.k
+    gen = torch.Generator().manual_seed(0)
+    # the graph of the first layer is that of the 3-D points, each later one that of the previous features
+    graph_inputs = [torch.randn(batch, n, 3, generator=gen)]
+    graph_inputs += [torch.randn(batch, n, c, generator=gen) for c in config.edge_dims[:-1]]
+    rows = max(1, (spec["edges_per_chunk"] or FastEdgeConv(3, 8, k).edges_per_chunk) // k)
+    chunks = []
+    for width in config.edge_dims:
+        full, rest = divmod(batch * n, rows)
+        sizes = [rows] * full + ([rest] if rest else [])
+        chunks += [(torch.randn(s * k, width, generator=gen), torch.randn(width, width, generator=gen)) for s in sizes]
+    f = torch.randn(batch, n, config.point_feature_dim, generator=gen)
+    W = torch.randn(config.global_dim, config.point_feature_dim, generator=gen)
+
+    def graphs() -> None:
+        for x in graph_inputs:
+            knn_indices(x, k)
+
+    def edge_products() -> None:
+        for v, W2 in chunks:
+            gh = v @ W2.T  # forward: h = W2 v on every edge of the chunk (gh: its gradient's stand-in)
+            gh @ W2  # gradient with respect to v
+            W2.clone().addmm_(gh.T, v)  # gradient with respect to W2
+
+    def global_products() -> None:
+        for b in range(batch):
+            W @ f[b].T  # the global feature's linear layer on every point (its max over points)
+
+    parts = {"kNN graphs": graphs, "EdgeConv products": edge_products, "global feature products": global_products}
+    result = {}
+    for name, work in parts.items():
+        for _ in range(spec["warmup"]):
+            work()
+        times = []
+        for _ in range(spec["repeats"]):
+            start = time.perf_counter()
+            work()
+            times.append(time.perf_counter() - start)
+        result[name] = statistics.median(times)
+    return result
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batch", type=int, default=32)
@@ -97,11 +159,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--edges-per-chunk", type=int, default=0, help="EdgeConv chunk size (0: the default)")
     parser.add_argument("--profile", action="store_true", help="print a torch.profiler table per configuration")
+    parser.add_argument("--floor", action="store_true",
+                        help="also time the kNN graphs and the matrix products of a step alone (a lower bound)")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     if args.worker:
-        print(json.dumps(run_worker(json.loads(args.worker))))
+        spec = json.loads(args.worker)
+        print(json.dumps(floor_worker(spec) if spec.get("floor_only") else run_worker(spec)))
         return 0
 
     print(f"CuboidAbstractionNet training step (forward + loss + backward + Adam), {args.config} config, CPU")
@@ -141,6 +206,19 @@ def main(argv: list[str] | None = None) -> int:
                 f"{n:>7} {variant:>10} {r['median_s']:>9.3f} {r['min_s']:>7.3f} {r['cpu_s']:>7.3f} "
                 f"{r['peak_mib']:>9.0f} {r['parameters']:>10,} {r['threads']:>7}"
             )
+        if args.floor:
+            proc = subprocess.run(
+                [sys.executable, __file__, "--worker", json.dumps(dict(spec, floor_only=True))],
+                capture_output=True, text=True,
+            )
+            if proc.returncode != 0:
+                failed = True
+                print(f"{n:>7} {'floor':>10}   failed: {proc.stderr.strip().splitlines()[-1:]}")
+                continue
+            parts = json.loads(proc.stdout.strip().splitlines()[-1])
+            for name, seconds in parts.items():
+                print(f"{n:>7} {'floor':>10} {seconds:>9.3f}   {name}")
+            print(f"{n:>7} {'floor':>10} {sum(parts.values()):>9.3f}   sum: a lower bound for the step")
     return 1 if failed else 0
 
 

@@ -517,7 +517,7 @@ class FastEdgeConv(EdgeConv):
 
         if _uses_batch_stats(self.bn1):
             with torch.no_grad():
-                mean1, var1 = self._edge_stats(P.detach(), Q.detach(), flat_nbr)
+                mean1, var1 = self._edge_stats(P.detach(), Q.detach(), flat_nbr, max(1, self.edges_per_chunk // k))
             _update_running_stats(self.bn1, mean1, var1, rows * k)
         else:
             mean1, var1 = self.bn1.running_mean, self.bn1.running_var
@@ -545,22 +545,27 @@ class FastEdgeConv(EdgeConv):
         return F.leaky_relu(y, self.negative_slope).view(batch, n, self.out_dim)
 
     @staticmethod
-    def _edge_stats(P: torch.Tensor, Q: torch.Tensor, nbr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _edge_stats(P: torch.Tensor, Q: torch.Tensor, nbr: torch.Tensor,
+                    rows: int = _EDGES_PER_CHUNK // 20) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and biased variance over all edges of u = P_j + Q_i, from per-point sums.
 
-        With Qc = Q - mean and S_i = sum of P_j over the neighbours j of i (an embedding bag):
+        With Qc = Q - mean and S_i = sum of P_j over the neighbours j of i:
         sum over edges of (u - mean)^2 = sum_j indegree_j P_j^2 + k sum_i Qc_i^2 + 2 sum_i Qc_i S_i.
         The terms can be much larger than their sum (P and Q nearly cancel on close neighbours), so
-        the sums are taken in float64, where that cancellation costs nothing visible.
+        the sums are taken in float64, where that cancellation costs nothing visible. S is summed
+        ``rows`` points at a time, so no (B * N, C) float64 tensor of it is ever stored.
         """
-        rows, k = nbr.shape
+        n_rows, k = nbr.shape
         P64, Q64 = P.double(), Q.double()
-        in_degree = torch.bincount(nbr.reshape(-1), minlength=rows).to(P64.dtype)
-        mean = (in_degree @ P64 + k * Q64.sum(0)) / (rows * k)
+        in_degree = torch.bincount(nbr.reshape(-1), minlength=n_rows).to(P64.dtype)
+        mean = (in_degree @ P64 + k * Q64.sum(0)) / (n_rows * k)
         Qc = Q64 - mean
-        S = F.embedding_bag(nbr, P64, mode="sum")
-        sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * (Qc * S).sum(0)
-        return mean.to(P.dtype), (sq / (rows * k)).clamp_min(0).to(P.dtype)
+        cross = torch.zeros_like(mean)  # sum_i Qc_i S_i
+        for r0 in range(0, n_rows, rows):
+            S = P64.index_select(0, nbr[r0 : r0 + rows].reshape(-1)).view(-1, k, P.shape[1]).sum(1)
+            cross += (Qc[r0 : r0 + rows] * S).sum(0)
+        sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * cross
+        return mean.to(P.dtype), (sq / (n_rows * k)).clamp_min(0).to(P.dtype)
 
 
 class FastGlobalFeature(GlobalFeature):
