@@ -29,6 +29,7 @@ tensors.)
 Example::
 
     python benchmarks/bench_model.py --batch 32 --points 1024 4096 --repeats 7
+    python benchmarks/bench_model.py --points 1024 --variant fast readable --floor
 """
 
 from __future__ import annotations
@@ -111,11 +112,11 @@ def floor_worker(spec: dict) -> dict:
     graph_inputs = [torch.randn(batch, n, 3, generator=gen)]
     graph_inputs += [torch.randn(batch, n, c, generator=gen) for c in config.edge_dims[:-1]]
     rows = max(1, (spec["edges_per_chunk"] or FastEdgeConv(3, 8, k).edges_per_chunk) // k)
-    chunks = []
+    chunks = []  # (edge values of one chunk, second-layer weights, how many such chunks a layer has)
     for width in config.edge_dims:
         full, rest = divmod(batch * n, rows)
-        sizes = [rows] * full + ([rest] if rest else [])
-        chunks += [(torch.randn(s * k, width, generator=gen), torch.randn(width, width, generator=gen)) for s in sizes]
+        W2 = torch.randn(width, width, generator=gen)
+        chunks += [(torch.randn(s * k, width, generator=gen), W2, count) for s, count in ((rows, full), (rest, 1)) if s and count]
     f = torch.randn(batch, n, config.point_feature_dim, generator=gen)
     W = torch.randn(config.global_dim, config.point_feature_dim, generator=gen)
 
@@ -124,10 +125,11 @@ def floor_worker(spec: dict) -> dict:
             knn_indices(x, k)
 
     def edge_products() -> None:
-        for v, W2 in chunks:
-            gh = v @ W2.T  # forward: h = W2 v on every edge of the chunk (gh: its gradient's stand-in)
-            gh @ W2  # gradient with respect to v
-            W2.clone().addmm_(gh.T, v)  # gradient with respect to W2
+        for v, W2, count in chunks:
+            for _ in range(count):
+                gh = v @ W2.T  # forward: h = W2 v on every edge of the chunk (gh: its gradient's stand-in)
+                gh @ W2  # gradient with respect to v
+                W2.clone().addmm_(gh.T, v)  # gradient with respect to W2
 
     def global_products() -> None:
         for b in range(batch):
