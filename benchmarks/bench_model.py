@@ -50,14 +50,25 @@ from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
 from cuboidlib.neighbors import knn_indices
 
 
-def run_worker(spec: dict) -> dict:
-    """One configuration: build the model, warm up, time ``repeats`` steps; returns the figures."""
+def _setup(spec: dict) -> ModelConfig:
+    """Set the worker's threads and return the configuration's ModelConfig."""
     if spec["threads"]:
         torch.set_num_threads(spec["threads"])
+    if spec["config"] == "paper":
+        return ModelConfig(num_cuboids=spec["cuboids"])
+    return ModelConfig.small(num_cuboids=spec["cuboids"])
+
+
+def _in_subprocess(spec: dict) -> tuple[dict | None, subprocess.CompletedProcess]:
+    """Run one worker in a fresh Python process: (its figures, or None if it failed; the process)."""
+    proc = subprocess.run([sys.executable, __file__, "--worker", json.dumps(spec)], capture_output=True, text=True)
+    return (json.loads(proc.stdout.strip().splitlines()[-1]) if proc.returncode == 0 else None), proc
+
+
+def run_worker(spec: dict) -> dict:
+    """One configuration: build the model, warm up, time ``repeats`` steps; returns the figures."""
+    config = _setup(spec)
     torch.manual_seed(0)
-    config = ModelConfig(num_cuboids=spec["cuboids"]) if spec["config"] == "paper" else ModelConfig.small(
-        num_cuboids=spec["cuboids"]
-    )
     model = CuboidAbstractionNet(config, fast=spec["variant"] == "fast").train()
     if spec["edges_per_chunk"]:
         for module in model.modules():
@@ -101,11 +112,7 @@ def run_worker(spec: dict) -> dict:
 
 def floor_worker(spec: dict) -> dict:
     """Median seconds of the kNN graphs and of the matrix products of one step (see ``--floor``)."""
-    if spec["threads"]:
-        torch.set_num_threads(spec["threads"])
-    config = ModelConfig(num_cuboids=spec["cuboids"]) if spec["config"] == "paper" else ModelConfig.small(
-        num_cuboids=spec["cuboids"]
-    )
+    config = _setup(spec)
     batch, n, k = spec["batch"], spec["points"], config.k
     gen = torch.Generator().manual_seed(0)
     # the graph of the first layer is that of the 3-D points, each later one that of the previous features
@@ -116,7 +123,8 @@ def floor_worker(spec: dict) -> dict:
     for width in config.edge_dims:
         full, rest = divmod(batch * n, rows)
         W2 = torch.randn(width, width, generator=gen)
-        chunks += [(torch.randn(s * k, width, generator=gen), W2, count) for s, count in ((rows, full), (rest, 1)) if s and count]
+        chunks += [(torch.randn(s * k, width, generator=gen), W2, count)
+                   for s, count in ((rows, full), (rest, 1)) if s and count]
     f = torch.randn(batch, n, config.point_feature_dim, generator=gen)
     W = torch.randn(config.global_dim, config.point_feature_dim, generator=gen)
 
@@ -194,30 +202,23 @@ def main(argv: list[str] | None = None) -> int:
                 edges_per_chunk=args.edges_per_chunk,
                 profile=args.profile,
             )
-            proc = subprocess.run(
-                [sys.executable, __file__, "--worker", json.dumps(spec)], capture_output=True, text=True
-            )
+            r, proc = _in_subprocess(spec)
             if args.profile:
                 print(proc.stderr)
-            if proc.returncode != 0:
+            if r is None:
                 failed = True
                 print(f"{n:>7} {variant:>10}   failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
-            r = json.loads(proc.stdout.strip().splitlines()[-1])
             print(
                 f"{n:>7} {variant:>10} {r['median_s']:>9.3f} {r['min_s']:>7.3f} {r['cpu_s']:>7.3f} "
                 f"{r['peak_mib']:>9.0f} {r['parameters']:>10,} {r['threads']:>7}"
             )
         if args.floor:
-            proc = subprocess.run(
-                [sys.executable, __file__, "--worker", json.dumps(dict(spec, floor_only=True))],
-                capture_output=True, text=True,
-            )
-            if proc.returncode != 0:
+            parts, proc = _in_subprocess(dict(spec, floor_only=True))
+            if parts is None:
                 failed = True
                 print(f"{n:>7} {'floor':>10}   failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
-            parts = json.loads(proc.stdout.strip().splitlines()[-1])
             for name, seconds in parts.items():
                 print(f"{n:>7} {'floor':>10} {seconds:>9.3f}   {name}")
             print(f"{n:>7} {'floor':>10} {sum(parts.values()):>9.3f}   sum: a lower bound for the step")

@@ -545,8 +545,7 @@ class FastEdgeConv(EdgeConv):
         return F.leaky_relu(y, self.negative_slope).view(batch, n, self.out_dim)
 
     @staticmethod
-    def _edge_stats(P: torch.Tensor, Q: torch.Tensor, nbr: torch.Tensor,
-                    rows: int = _EDGES_PER_CHUNK // 20) -> tuple[torch.Tensor, torch.Tensor]:
+    def _edge_stats(P: torch.Tensor, Q: torch.Tensor, nbr: torch.Tensor, rows: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and biased variance over all edges of u = P_j + Q_i, from per-point sums.
 
         With Qc = Q - mean and S_i = sum of P_j over the neighbours j of i:
