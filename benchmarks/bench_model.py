@@ -11,8 +11,9 @@ depend on the shapes).
 
 ``--variant fast readable`` compares the network built with the fast EdgeConv / global layer
 (``FastEdgeConv``, ``FastGlobalFeature``, the default) with the readable ones (``fast=False``, same
-results). ``--profile`` prints a torch.profiler table of one
-step per configuration.
+results). ``--variant compiled`` is the fast network with the optional compiled kernels of
+:mod:`cuboidlib.kernels` (same results; built with a C++ compiler on first use). ``--profile``
+prints a torch.profiler table of one step per configuration.
 
 ``--floor`` times, beside each step, the work that every implementation of this step has to do: the
 kNN graphs of the EdgeConv layers (pairwise distances and the top-k selection,
@@ -30,6 +31,7 @@ Example::
 
     python benchmarks/bench_model.py --batch 32 --points 1024 4096 --repeats 7
     python benchmarks/bench_model.py --points 1024 --variant fast readable --floor
+    python benchmarks/bench_model.py --points 1024 --variant fast compiled --repeats 7
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ import time
 import torch
 import torch.nn.functional as F
 
+from cuboidlib import kernels
 from cuboidlib.losses import LossConfig, total_loss
 from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
 from cuboidlib.neighbors import knn_indices
@@ -69,7 +72,9 @@ def run_worker(spec: dict) -> dict:
     """One configuration: build the model, warm up, time ``repeats`` steps; returns the figures."""
     config = _setup(spec)
     torch.manual_seed(0)
-    model = CuboidAbstractionNet(config, fast=spec["variant"] == "fast").train()
+    if spec["variant"] == "compiled":
+        kernels.enable()
+    model = CuboidAbstractionNet(config, fast=spec["variant"] != "readable").train()
     if spec["edges_per_chunk"]:
         for module in model.modules():
             if isinstance(module, FastEdgeConv):
@@ -164,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cuboids", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=7, help="timed steps per configuration (median reported)")
     parser.add_argument("--warmup", type=int, default=2)
-    parser.add_argument("--variant", nargs="+", choices=["fast", "readable"], default=["fast"])
+    parser.add_argument("--variant", nargs="+", choices=["fast", "compiled", "readable"], default=["fast"])
     parser.add_argument("--config", choices=["paper", "small"], default="paper", help="ModelConfig() or .small()")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--edges-per-chunk", type=int, default=0, help="EdgeConv chunk size (0: the default)")

@@ -116,6 +116,9 @@ def _add_train_command(sub) -> None:
     p.add_argument("--seed", type=int, help="seed of the weights, data order and sampling")
     p.add_argument("--device", help="auto (CUDA when available), cpu or cuda[:i]")
     p.add_argument("--threads", type=int, dest="num_threads", help="torch.set_num_threads")
+    p.add_argument("--compiled-kernels", action="store_const", const=True,
+                   help="run the CPU hot spots with cuboidlib.kernels (same results, faster; builds them with a "
+                   "C++ compiler on first use)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="any other field, VALUE in JSON, e.g. --set loss.lambda_compact=0.2 --set model.k=16")
     p.add_argument("--print-config", action="store_true", help="print the resulting config and exit")
@@ -161,7 +164,7 @@ def _train_config_from_args(args):
     flags = {k: getattr(args, k) for k in ("max_minutes", "max_steps", "epochs", "category", "n_shapes", "n_points",
                                            "data_dir", "data_seed", "split_fractions", "split_seed", "lr",
                                            "batch_size", "checkpoint_every", "validate_every", "seed", "device",
-                                           "num_threads")}
+                                           "num_threads", "compiled_kernels")}
     merge({k: v for k, v in flags.items() if v is not None})
     if args.num_cuboids is not None:
         data["model"] = {**data["model"], "num_cuboids": args.num_cuboids}

@@ -38,6 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from . import kernels
 from .config import ConfigDict
 from .neighbors import knn_indices
 
@@ -361,6 +362,11 @@ class GlobalFeature(nn.Module):
 # ----------------------------------------------------------------------------------------------
 
 
+def _use_compiled(P: torch.Tensor, k: int) -> bool:
+    """Whether _EdgeMLP runs its chunk loops with the compiled kernels (:mod:`cuboidlib.kernels`)."""
+    return kernels.enabled() and P.device.type == "cpu" and k <= 256
+
+
 class _EdgeMLP(torch.autograd.Function):
     """Per-edge part of EdgeConv, computed chunk by chunk over points, and its exact gradient.
 
@@ -389,28 +395,13 @@ class _EdgeMLP(torch.autograd.Function):
         scale1 = gamma1 * rstd1
         P1 = P * scale1  # u -> gamma1 (u - mean1) rstd1 + beta1 = P1_j + Q1_i
         Q1 = Q * scale1 + (beta1 - scale1 * mean1)
-        hmax = P.new_empty(R, C2)
-        harg = torch.empty(R, C2, dtype=torch.uint8 if k <= 256 else torch.long, device=P.device)
-        position = torch.arange(k, dtype=P.dtype, device=P.device).view(1, k, 1)
         # The value of h on an edge at the BatchNorm mean, a typical value of h: the chunks produce
         # h - shift, whose sums give an accurate variance.
         shift = W2 @ F.leaky_relu(beta1, slope)
-        s1 = P.new_zeros(C2)
-        s2 = P.new_zeros(C2)
-        for r0 in range(0, R, rows):
-            r1 = min(R, r0 + rows)
-            v = P1.index_select(0, nbr[r0:r1].reshape(-1)).view(r1 - r0, k, C1)
-            F.leaky_relu_(v.add_(Q1[r0:r1].unsqueeze(1)), slope)
-            hc = torch.addmm(-shift, v.view(-1, C1), W2.T)  # h - shift, (edges, C2)
-            s1 += hc.sum(0)
-            hc3 = hc.view(r1 - r0, k, C2)
-            top = torch.amax(hc3, dim=1, keepdim=True)
-            hmax[r0:r1] = top.squeeze(1)
-            # index of a maximising neighbour (the last one if several tie): 1 + sign(h - max) is 1
-            # at the maxima and 0 elsewhere (float arithmetic is much faster here than comparisons)
-            at_max = torch.sub(hc3, top).sign_().add_(1).mul_(position)
-            harg[r0:r1] = torch.amax(at_max, dim=1)
-            s2 += hc.mul_(hc).sum(0)
+        if _use_compiled(P, k):
+            hmax, harg, s1, s2 = kernels.ops().edge_mlp_forward(P1, Q1, nbr, W2, shift, slope, rows)
+        else:
+            hmax, harg, s1, s2 = _EdgeMLP._forward_chunks(P1, Q1, nbr, W2, shift, slope, rows)
         hmax += shift
         n_edges = R * k
         m = s1 / n_edges
@@ -434,28 +425,15 @@ class _EdgeMLP(torch.autograd.Function):
         P_hat = P * rstd1  # normalised u: xhat = P_hat_j + Q_hat_i
         Q_hat = (Q - mean1) * rstd1
         g_hmax = g_hmax.contiguous()
-        g_W2 = torch.zeros_like(W2)
-        g_rowsum = torch.empty_like(Q)  # per point i: sum over its k edges of dL/dz
-        g_scatter = torch.zeros_like(P)  # per point j: sum over the edges (i, j) of dL/dz
-        x_scatter = torch.zeros_like(P) if ctx.batch_stats else None  # the same for xhat
         # dL/dh = dL/dmean / E + dL/dvar * 2 (h - mean) / E, plus dL/dhmax on the maximising edge
         c_var = g_hvar * (2.0 / n_edges)
         c_mean = g_hmean / n_edges - c_var * h_mean
         W2_var = W2 * c_var.unsqueeze(1)
-        for r0 in range(0, R, rows):
-            r1 = min(R, r0 + rows)
-            idx = nbr[r0:r1].reshape(-1)
-            xhat = P_hat.index_select(0, idx).view(r1 - r0, k, C1).add_(Q_hat[r0:r1].unsqueeze(1))
-            if x_scatter is not None:
-                x_scatter.index_add_(0, idx, xhat.view(-1, C1))
-            v = F.leaky_relu_(torch.addcmul(beta1, xhat, gamma1), slope).view(-1, C1)
-            gh = torch.addmm(c_mean, v, W2_var.T)  # c_mean + c_var * h
-            gh.view(r1 - r0, k, C2).scatter_add_(1, harg[r0:r1].long().unsqueeze(1), g_hmax[r0:r1].unsqueeze(1))
-            g_W2.addmm_(gh.T, v)
-            # LeakyReLU backward from its output (v > 0 exactly where its input is > 0)
-            gz = torch.ops.aten.leaky_relu_backward(gh @ W2, v, slope, True)
-            g_rowsum[r0:r1] = gz.view(r1 - r0, k, C1).sum(1)
-            g_scatter.index_add_(0, idx, gz)
+        chunks = (P_hat, Q_hat, nbr, gamma1, beta1, W2, W2_var, c_mean, harg, g_hmax, slope, rows, ctx.batch_stats)
+        if _use_compiled(P, k):
+            g_W2, g_rowsum, g_scatter, x_scatter = kernels.ops().edge_mlp_backward(*chunks)
+        else:
+            g_W2, g_rowsum, g_scatter, x_scatter = _EdgeMLP._backward_chunks(*chunks)
         # Sums over all edges, from the per-point sums: sum dL/dz and sum dL/dz * xhat.
         sum_gz = g_rowsum.sum(0)
         sum_gzx = (g_scatter * P_hat).sum(0) + (g_rowsum * Q_hat).sum(0)
@@ -473,6 +451,62 @@ class _EdgeMLP(torch.autograd.Function):
             g_Q = scale1 * g_rowsum
             g_P = scale1 * g_scatter
         return g_P, g_Q, None, sum_gzx, sum_gz, g_W2, None, None, None, None, None, None
+
+    @staticmethod
+    def _forward_chunks(P1, Q1, nbr, W2, shift, slope, rows):
+        """The per-edge loop of forward: (hmax - shift, argmax over the k neighbours, sum of h - shift,
+        sum of (h - shift)^2). ``kernels.cpp``'s edge_mlp_forward is the compiled version of it."""
+        R, C1 = P1.shape
+        k = nbr.shape[1]
+        C2 = W2.shape[0]
+        hmax = P1.new_empty(R, C2)
+        harg = torch.empty(R, C2, dtype=torch.uint8 if k <= 256 else torch.long, device=P1.device)
+        position = torch.arange(k, dtype=P1.dtype, device=P1.device).view(1, k, 1)
+        s1 = P1.new_zeros(C2)
+        s2 = P1.new_zeros(C2)
+        for r0 in range(0, R, rows):
+            r1 = min(R, r0 + rows)
+            v = P1.index_select(0, nbr[r0:r1].reshape(-1)).view(r1 - r0, k, C1)
+            F.leaky_relu_(v.add_(Q1[r0:r1].unsqueeze(1)), slope)
+            hc = torch.addmm(-shift, v.view(-1, C1), W2.T)  # h - shift, (edges, C2)
+            s1 += hc.sum(0)
+            hc3 = hc.view(r1 - r0, k, C2)
+            top = torch.amax(hc3, dim=1, keepdim=True)
+            hmax[r0:r1] = top.squeeze(1)
+            # index of a maximising neighbour (the last one if several tie): 1 + sign(h - max) is 1
+            # at the maxima and 0 elsewhere (float arithmetic is much faster here than comparisons)
+            at_max = torch.sub(hc3, top).sign_().add_(1).mul_(position)
+            harg[r0:r1] = torch.amax(at_max, dim=1)
+            s2 += hc.mul_(hc).sum(0)
+        return hmax, harg, s1, s2
+
+    @staticmethod
+    def _backward_chunks(P_hat, Q_hat, nbr, gamma1, beta1, W2, W2_var, c_mean, harg, g_hmax, slope, rows, batch_stats):
+        """The per-edge loop of backward: (dL/dW2, per point i the sum of dL/dz over its edges (i, .),
+        per point j the sums of dL/dz and of xhat over the edges (., j) ending at it (the latter only
+        with ``batch_stats``, else None)). ``kernels.cpp``'s edge_mlp_backward is the compiled version."""
+        R, C1 = P_hat.shape
+        k = nbr.shape[1]
+        C2 = W2.shape[0]
+        g_W2 = torch.zeros_like(W2)
+        g_rowsum = torch.empty_like(Q_hat)  # per point i: sum over its k edges of dL/dz
+        g_scatter = torch.zeros_like(P_hat)  # per point j: sum over the edges (i, j) of dL/dz
+        x_scatter = torch.zeros_like(P_hat) if batch_stats else None  # the same for xhat
+        for r0 in range(0, R, rows):
+            r1 = min(R, r0 + rows)
+            idx = nbr[r0:r1].reshape(-1)
+            xhat = P_hat.index_select(0, idx).view(r1 - r0, k, C1).add_(Q_hat[r0:r1].unsqueeze(1))
+            if x_scatter is not None:
+                x_scatter.index_add_(0, idx, xhat.view(-1, C1))
+            v = F.leaky_relu_(torch.addcmul(beta1, xhat, gamma1), slope).view(-1, C1)
+            gh = torch.addmm(c_mean, v, W2_var.T)  # c_mean + c_var * h
+            gh.view(r1 - r0, k, C2).scatter_add_(1, harg[r0:r1].long().unsqueeze(1), g_hmax[r0:r1].unsqueeze(1))
+            g_W2.addmm_(gh.T, v)
+            # LeakyReLU backward from its output (v > 0 exactly where its input is > 0)
+            gz = torch.ops.aten.leaky_relu_backward(gh @ W2, v, slope, True)
+            g_rowsum[r0:r1] = gz.view(r1 - r0, k, C1).sum(1)
+            g_scatter.index_add_(0, idx, gz)
+        return g_W2, g_rowsum, g_scatter, x_scatter
 
 
 class FastEdgeConv(EdgeConv):
@@ -559,10 +593,13 @@ class FastEdgeConv(EdgeConv):
         in_degree = torch.bincount(nbr.reshape(-1), minlength=n_rows).to(P64.dtype)
         mean = (in_degree @ P64 + k * Q64.sum(0)) / (n_rows * k)
         Qc = Q64 - mean
-        cross = torch.zeros_like(mean)  # sum_i Qc_i S_i
-        for r0 in range(0, n_rows, rows):
-            S = P64.index_select(0, nbr[r0 : r0 + rows].reshape(-1)).view(-1, k, P.shape[1]).sum(1)
-            cross += (Qc[r0 : r0 + rows] * S).sum(0)
+        if _use_compiled(P, k):  # the same sum, compiled (cuboidlib.kernels)
+            cross = kernels.ops().edge_cross(P, Q, mean, nbr)
+        else:
+            cross = torch.zeros_like(mean)  # sum_i Qc_i S_i
+            for r0 in range(0, n_rows, rows):
+                S = P64.index_select(0, nbr[r0 : r0 + rows].reshape(-1)).view(-1, k, P.shape[1]).sum(1)
+                cross += (Qc[r0 : r0 + rows] * S).sum(0)
         sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * cross
         return mean.to(P.dtype), (sq / (n_rows * k)).clamp_min(0).to(P.dtype)
 

@@ -26,6 +26,7 @@ import math
 
 import torch
 
+from . import kernels
 from ._checks import check_shape
 
 __all__ = ["knn_indices", "nearest_index", "nearest_indices"]
@@ -71,9 +72,10 @@ def knn_indices(x: torch.Tensor, k: int, sorted: bool = False) -> torch.Tensor:
         raise ValueError(f"k must be an integer in [1, N] = [1, {n}], got k = {k!r}")
     (x,) = _centred(x)
     out = torch.empty(batch, n, k, dtype=torch.long, device=x.device)
+    compiled = kernels.enabled() and x.device.type == "cpu" and not sorted
     # torch.topk on the CPU switches from a selection algorithm to a faster partial sort on rows
     # of at least 64 k entries; shorter rows are padded with +inf, which is never selected.
-    width = max(n, 64 * k) if x.device.type == "cpu" else n
+    width = max(n, 64 * k) if x.device.type == "cpu" and not compiled else n
     rows = max(1, min(n, _BLOCK // width))
     block = x.new_full((rows, width), math.inf)
     sq = (x * x).sum(-1)
@@ -86,7 +88,10 @@ def knn_indices(x: torch.Tensor, k: int, sorted: bool = False) -> torch.Tensor:
                 torch.addmm(sq[b].unsqueeze(0), x[b, r0:r1], x[b].T, alpha=-2.0, out=d[:, :n])
                 own = torch.arange(r0, r1, device=x.device)
                 d[own - r0, own] = -math.inf  # the point itself is always one of its neighbours
-                out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=sorted).indices
+                if compiled:  # the same selection, compiled (cuboidlib.kernels)
+                    out[b, r0:r1] = kernels.ops().smallest_k(d[:, :n], k)
+                else:
+                    out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=sorted).indices
     return out.clamp_(max=n - 1)
 
 

@@ -58,6 +58,7 @@ from pathlib import Path
 
 import torch
 
+from . import kernels
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
 from .config import ConfigDict, derive_seed, read_config_file, resolve_device
 from .dataset import ShapeSet, load_splits
@@ -98,6 +99,7 @@ SELECTIONS = {"validation_loss": "lowest validation loss", "last": "last weights
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
     "epochs", "max_steps", "max_minutes", "checkpoint_every", "validate_every", "device", "num_threads",
+    "compiled_kernels",
 )
 # Network outputs checked for NaN / inf before the loss is computed.
 _OUTPUTS = ("centers", "quaternions", "half_sizes", "exist_logits", "W", "mu", "logvar")
@@ -147,7 +149,9 @@ class TrainConfig(ConfigDict):
         their parts; ``best.pt`` is only chosen from step S on. S = 0 (default): no warm-up.
     Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
         order, loss and VAE sampling), ``device`` ("auto" = CUDA when available, else CPU),
-        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default).
+        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default), ``compiled_kernels``
+        (run the CPU hot spots with :mod:`cuboidlib.kernels`: the same results, a faster step; needs a
+        C++ compiler).
     """
 
     category: str = "chair"
@@ -175,6 +179,7 @@ class TrainConfig(ConfigDict):
     seed: int = 0
     device: str = "auto"
     num_threads: int | None = None
+    compiled_kernels: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.model, ModelConfig):
@@ -191,6 +196,8 @@ class TrainConfig(ConfigDict):
             _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
         for name in ("data_seed", "split_seed", "seed"):
             _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=0)
+        if not isinstance(self.compiled_kernels, bool):
+            raise ValueError(f"TrainConfig.compiled_kernels must be true or false, got {self.compiled_kernels!r}")
         for name in ("max_steps", "num_threads"):
             if getattr(self, name) is not None:
                 _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
@@ -435,6 +442,8 @@ class Trainer:
             torch.cuda.set_device(self.device)
         if config.num_threads is not None:
             torch.set_num_threads(config.num_threads)
+        if config.compiled_kernels:
+            kernels.enable()
         if config.batch_size % self.dist.world_size:
             raise ValueError(
                 f"batch_size {config.batch_size} must be divisible by the number of processes {self.dist.world_size}"

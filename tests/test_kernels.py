@@ -1,0 +1,222 @@
+"""The compiled kernels (cuboidlib/kernels.cpp) against the Python code they replace.
+
+Skipped where no C++ compiler or ninja is found (cuboidlib.kernels.available()); a build error where
+they are found fails here.
+"""
+
+import math
+
+import pytest
+import torch
+
+from cuboidlib import kernels
+from cuboidlib.losses import LossConfig, total_loss
+from cuboidlib.model import CuboidAbstractionNet, EdgeConv, FastEdgeConv, ModelConfig, _EdgeMLP
+from cuboidlib.neighbors import knn_indices
+from cuboidlib.train import TrainConfig, Trainer
+
+needs_compiler = pytest.mark.skipif(not kernels.available(), reason="no C++ compiler or ninja here")
+
+
+@pytest.fixture
+def compiled():
+    """The compiled kernels enabled for one test (disabled afterwards, whatever happens)."""
+    kernels.enable()
+    yield kernels.ops()
+    kernels.disable()
+
+
+def _same_sets(a, b):
+    return torch.equal(a.sort(-1).values, b.sort(-1).values)
+
+
+# ----------------------------------------------------------------------------------------------
+# smallest_k: the top-k selection of knn_indices
+# ----------------------------------------------------------------------------------------------
+
+
+@needs_compiler
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("n, k", [(1024, 20), (100, 20), (37, 5), (20, 20), (300, 1)])
+def test_smallest_k_selects_the_same_entries_as_topk(compiled, dtype, n, k):
+    g = torch.Generator().manual_seed(n + k)
+    d = torch.rand(17, n, generator=g, dtype=dtype)
+    chosen = compiled.smallest_k(d, k)
+    assert chosen.shape == (17, k) and chosen.dtype == torch.long
+    assert _same_sets(chosen, d.topk(k, dim=1, largest=False).indices)
+
+
+@needs_compiler
+def test_smallest_k_reads_strided_rows_and_survives_non_finite_rows(compiled):
+    d = torch.rand(5, 64, generator=torch.Generator().manual_seed(0))
+    wide = torch.full((5, 80), math.inf)
+    wide[:, :64] = d
+    assert _same_sets(compiled.smallest_k(wide[:, :64], 8), d.topk(8, dim=1, largest=False).indices)
+    bad = d.clone()
+    bad[0] = math.nan
+    bad[1, :60] = math.nan
+    bad[2] = math.inf
+    chosen = compiled.smallest_k(bad, 8)
+    assert ((chosen >= 0) & (chosen < 64)).all()
+    assert all(len(set(row.tolist())) == 8 for row in chosen)  # k distinct valid indices per row
+    assert set(chosen[1].tolist()) >= {60, 61, 62, 63}  # the finite entries of a mostly-NaN row first
+
+
+@needs_compiler
+def test_smallest_k_rejects_bad_arguments(compiled):
+    with pytest.raises(RuntimeError, match="k must be"):
+        compiled.smallest_k(torch.rand(3, 10), 11)
+    with pytest.raises(RuntimeError, match="unit column stride"):
+        compiled.smallest_k(torch.rand(10, 3).T, 2)
+
+
+@needs_compiler
+@pytest.mark.parametrize("channels", [3, 64])
+def test_knn_indices_are_the_same_with_the_compiled_selection(channels):
+    x = torch.randn(3, 500, channels, generator=torch.Generator().manual_seed(channels))
+    reference = knn_indices(x, 20)
+    kernels.enable()
+    try:
+        fast = knn_indices(x, 20)
+        ordered = knn_indices(x, 20, sorted=True)  # asks for an order: torch.topk, as before
+    finally:
+        kernels.disable()
+    assert _same_sets(fast, reference)
+    assert (fast == torch.arange(500).view(1, 500, 1)).any(-1).all()  # every point is its own neighbour
+    assert torch.equal(ordered, knn_indices(x, 20, sorted=True))
+
+
+# ----------------------------------------------------------------------------------------------
+# The per-edge loops of _EdgeMLP and _edge_stats
+# ----------------------------------------------------------------------------------------------
+
+
+def _edge_inputs(dtype, R=40, C1=6, C2=7, k=5):
+    g = torch.Generator().manual_seed(3)
+
+    def rand(*shape):
+        return torch.randn(*shape, generator=g, dtype=dtype)
+
+    nbr = torch.randint(0, R, (R, k), generator=g)
+    return dict(P=rand(R, C1), Q=rand(R, C1), nbr=nbr, W2=rand(C2, C1), shift=rand(C2), gamma=rand(C1),
+                beta=rand(C1), W2_var=rand(C2, C1), c_mean=rand(C2), g_hmax=rand(R, C2))
+
+
+@needs_compiler
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("rows", [3, 40])  # several chunks, one partial; one chunk
+def test_edge_mlp_chunk_loops_match_the_python_ones(compiled, dtype, rows):
+    e = _edge_inputs(dtype)
+    tol = dict(rtol=1e-12, atol=1e-12) if dtype == torch.float64 else dict(rtol=1e-5, atol=1e-5)
+    forward_args = (e["P"], e["Q"], e["nbr"], e["W2"], e["shift"], 0.2, rows)
+    hmax, harg, s1, s2 = compiled.edge_mlp_forward(*forward_args)
+    hmax_py, harg_py, s1_py, s2_py = _EdgeMLP._forward_chunks(*forward_args)
+    torch.testing.assert_close(hmax, hmax_py, **tol)
+    assert torch.equal(harg, harg_py)
+    torch.testing.assert_close(s1, s1_py, **tol)
+    torch.testing.assert_close(s2, s2_py, **tol)
+    for batch_stats in (True, False):
+        args = (e["P"], e["Q"], e["nbr"], e["gamma"], e["beta"], e["W2"], e["W2_var"], e["c_mean"], harg,
+                e["g_hmax"], 0.2, rows, batch_stats)
+        ours, python = compiled.edge_mlp_backward(*args), _EdgeMLP._backward_chunks(*args)
+        for name, a, b in zip(("g_W2", "g_rowsum", "g_scatter", "x_scatter"), ours, python):
+            if b is None:
+                assert a is None, name
+            else:
+                torch.testing.assert_close(a, b, **tol, msg=name)
+
+
+@needs_compiler
+def test_edge_stats_cross_term_matches_the_python_sum(compiled):
+    e = _edge_inputs(torch.float32, R=300, C1=16)
+    kernels.disable()
+    reference = FastEdgeConv._edge_stats(e["P"], e["Q"], e["nbr"], 7)
+    kernels.enable()
+    ours = FastEdgeConv._edge_stats(e["P"], e["Q"], e["nbr"], 7)
+    for a, b in zip(ours, reference):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
+
+
+# ----------------------------------------------------------------------------------------------
+# The layer and the network
+# ----------------------------------------------------------------------------------------------
+
+
+@needs_compiler
+@pytest.mark.parametrize("training", [True, False])
+def test_fast_edgeconv_with_kernels_matches_readable_edgeconv(compiled, training):
+    torch.manual_seed(1)
+    fast = FastEdgeConv(5, 6, k=5, edges_per_chunk=17).double().train(training)
+    with torch.no_grad():  # BatchNorm scales of both signs, running statistics away from 0 / 1
+        for bn in (fast.bn1, fast.bn2):
+            bn.weight.uniform_(-1, 1)
+            bn.bias.uniform_(-0.5, 0.5)
+            bn.running_mean.uniform_(-0.5, 0.5)
+            bn.running_var.uniform_(0.5, 1.5)
+    ref = EdgeConv(5, 6, k=5).double().train(training)
+    ref.load_state_dict(fast.state_dict())
+    x = torch.randn(2, 23, 5, dtype=torch.float64, requires_grad=True)
+    x_ref = x.detach().clone().requires_grad_()
+    y, y_ref = fast(x), ref(x_ref)
+    torch.testing.assert_close(y, y_ref, atol=1e-12, rtol=1e-12)
+    g = torch.randn_like(y)
+    y.backward(g)
+    y_ref.backward(g)
+    torch.testing.assert_close(x.grad, x_ref.grad, atol=1e-12, rtol=1e-9)
+    for (name, p), q in zip(fast.named_parameters(), ref.parameters()):
+        torch.testing.assert_close(p.grad, q.grad, atol=1e-12, rtol=1e-9, msg=name)
+    for (name, p), q in zip(fast.named_buffers(), ref.buffers()):
+        torch.testing.assert_close(p, q, atol=1e-12, rtol=1e-9, msg=name)
+
+
+@needs_compiler
+def test_training_step_of_the_network_is_the_same_with_kernels():
+    config = ModelConfig.small(num_cuboids=4)
+    # points on the unit sphere, whose normals are the points themselves
+    points = torch.nn.functional.normalize(torch.randn(2, 256, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    results = []
+    for use in (False, True):
+        (kernels.enable if use else kernels.disable)()
+        try:
+            torch.manual_seed(0)
+            net = CuboidAbstractionNet(config).double().train()
+            out = net(points.double())
+            loss = total_loss(out, points.double(), points.double(), LossConfig(), generator=torch.Generator().manual_seed(1)).total
+            loss.backward()
+            results.append((loss.detach(), [p.grad.clone() for p in net.parameters()]))
+        finally:
+            kernels.disable()
+    torch.testing.assert_close(results[0][0], results[1][0], rtol=1e-10, atol=1e-12)
+    for a, b in zip(results[0][1], results[1][1]):
+        torch.testing.assert_close(a, b, rtol=1e-8, atol=1e-10)
+
+
+@needs_compiler
+def test_trainer_enables_the_kernels_from_its_config(tmp_path):
+    config = TrainConfig(category="chair", n_shapes=8, n_points=128, model=ModelConfig.small(num_cuboids=4),
+                         batch_size=4, max_steps=1, checkpoint_every=1, validate_every=1, compiled_kernels=True)
+    try:
+        Trainer(config, tmp_path / "run", quiet=True).run()
+        assert kernels.enabled()
+    finally:
+        kernels.disable()
+    assert (tmp_path / "run" / "best.pt").is_file()
+
+
+# ----------------------------------------------------------------------------------------------
+# Without a compiler
+# ----------------------------------------------------------------------------------------------
+
+
+def test_enable_without_a_compiler_says_so_and_leaves_the_python_code_on(monkeypatch):
+    monkeypatch.setattr(kernels, "_module", None)
+    monkeypatch.setattr(kernels, "_compiler", lambda: None)
+    with pytest.raises(kernels.KernelsUnavailable, match="no C\\+\\+ compiler"):
+        kernels.enable()
+    assert not kernels.enabled()
+    assert not kernels.available()
+
+
+def test_train_config_rejects_a_non_boolean_switch():
+    with pytest.raises(ValueError, match="compiled_kernels must be true or false"):
+        TrainConfig(compiled_kernels="yes")
