@@ -14,7 +14,7 @@ Python versions and with the readable network in float64) and change only the sp
 asked::
 
     import cuboidlib.kernels
-    cuboidlib.kernels.enable()   # compiles on first use (about a minute), then cached
+    cuboidlib.kernels.enable()   # compiles on first use (about 30 s on 2 cores), then cached
 
 or ``cuboidlib train ... --compiled-kernels``. Compiling needs a C++ compiler and ``ninja`` (a
 dependency of cuboidlib); PyTorch caches the build under ``~/.cache/torch_extensions`` (or
@@ -25,6 +25,7 @@ them. They run on CPU tensors only; on a GPU the PyTorch code runs as before.
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -46,8 +47,6 @@ class KernelsUnavailable(RuntimeError):
 
 
 def _compiler() -> str | None:
-    import os
-
     return shutil.which(os.environ.get("CXX", "c++")) or shutil.which("g++") or shutil.which("clang++")
 
 

@@ -388,9 +388,7 @@ class _EdgeMLP(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, P, Q, nbr, gamma1, beta1, W2, mean1, var1, batch_stats, eps, slope, rows):
-        R, C1 = P.shape
-        k = nbr.shape[1]
-        C2 = W2.shape[0]
+        R, k = nbr.shape
         rstd1 = torch.rsqrt(var1 + eps)
         scale1 = gamma1 * rstd1
         P1 = P * scale1  # u -> gamma1 (u - mean1) rstd1 + beta1 = P1_j + Q1_i
@@ -418,9 +416,7 @@ class _EdgeMLP(torch.autograd.Function):
     def backward(ctx, g_hmax, g_hmean, g_hvar):
         P, Q, nbr, gamma1, beta1, W2, mean1, rstd1, harg, h_mean = ctx.saved_tensors
         slope, rows = ctx.slope, ctx.rows
-        R, C1 = P.shape
-        k = nbr.shape[1]
-        C2 = W2.shape[0]
+        R, k = nbr.shape
         n_edges = R * k
         P_hat = P * rstd1  # normalised u: xhat = P_hat_j + Q_hat_i
         Q_hat = (Q - mean1) * rstd1

@@ -89,7 +89,7 @@ def knn_indices(x: torch.Tensor, k: int, sorted: bool = False) -> torch.Tensor:
                 own = torch.arange(r0, r1, device=x.device)
                 d[own - r0, own] = -math.inf  # the point itself is always one of its neighbours
                 if compiled:  # the same selection, compiled (cuboidlib.kernels)
-                    out[b, r0:r1] = kernels.ops().smallest_k(d[:, :n], k)
+                    out[b, r0:r1] = kernels.ops().smallest_k(d, k)
                 else:
                     out[b, r0:r1] = d.topk(k, dim=1, largest=False, sorted=sorted).indices
     return out.clamp_(max=n - 1)

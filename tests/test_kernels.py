@@ -1,5 +1,8 @@
 """The compiled kernels (cuboidlib/kernels.cpp) against the Python code they replace.
 
+FastEdgeConv with the kernels against the readable EdgeConv: tests/test_model.py, in the test of the
+fast layer, parametrised over ``compiled``.
+
 Skipped where no C++ compiler or ninja is found (cuboidlib.kernels.available()); a build error where
 they are found fails here.
 """
@@ -11,7 +14,7 @@ import torch
 
 from cuboidlib import kernels
 from cuboidlib.losses import LossConfig, total_loss
-from cuboidlib.model import CuboidAbstractionNet, EdgeConv, FastEdgeConv, ModelConfig, _EdgeMLP
+from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig, _EdgeMLP
 from cuboidlib.neighbors import knn_indices
 from cuboidlib.train import TrainConfig, Trainer
 
@@ -140,33 +143,6 @@ def test_edge_stats_cross_term_matches_the_python_sum(compiled):
 # ----------------------------------------------------------------------------------------------
 # The layer and the network
 # ----------------------------------------------------------------------------------------------
-
-
-@needs_compiler
-@pytest.mark.parametrize("training", [True, False])
-def test_fast_edgeconv_with_kernels_matches_readable_edgeconv(compiled, training):
-    torch.manual_seed(1)
-    fast = FastEdgeConv(5, 6, k=5, edges_per_chunk=17).double().train(training)
-    with torch.no_grad():  # BatchNorm scales of both signs, running statistics away from 0 / 1
-        for bn in (fast.bn1, fast.bn2):
-            bn.weight.uniform_(-1, 1)
-            bn.bias.uniform_(-0.5, 0.5)
-            bn.running_mean.uniform_(-0.5, 0.5)
-            bn.running_var.uniform_(0.5, 1.5)
-    ref = EdgeConv(5, 6, k=5).double().train(training)
-    ref.load_state_dict(fast.state_dict())
-    x = torch.randn(2, 23, 5, dtype=torch.float64, requires_grad=True)
-    x_ref = x.detach().clone().requires_grad_()
-    y, y_ref = fast(x), ref(x_ref)
-    torch.testing.assert_close(y, y_ref, atol=1e-12, rtol=1e-12)
-    g = torch.randn_like(y)
-    y.backward(g)
-    y_ref.backward(g)
-    torch.testing.assert_close(x.grad, x_ref.grad, atol=1e-12, rtol=1e-9)
-    for (name, p), q in zip(fast.named_parameters(), ref.parameters()):
-        torch.testing.assert_close(p.grad, q.grad, atol=1e-12, rtol=1e-9, msg=name)
-    for (name, p), q in zip(fast.named_buffers(), ref.buffers()):
-        torch.testing.assert_close(p, q, atol=1e-12, rtol=1e-9, msg=name)
 
 
 @needs_compiler

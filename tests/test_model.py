@@ -13,6 +13,7 @@ import pytest
 import torch
 from torch.func import functional_call
 
+from cuboidlib import kernels
 from cuboidlib import model as model_module
 from cuboidlib.model import (
     read_normals_from_start,
@@ -209,9 +210,12 @@ def test_old_configs_without_cosine_affinity_still_load():
 # ----------------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=pytest.mark.skipif(
+    not kernels.available(), reason="the compiled kernels need a C++ compiler and ninja"))])
 @pytest.mark.parametrize("training", [True, False])
 @pytest.mark.parametrize("in_dim", [3, 5])
-def test_fast_edgeconv_matches_readable_values_gradients_and_running_stats(training, in_dim):
+def test_fast_edgeconv_matches_readable_values_gradients_and_running_stats(training, in_dim, compiled):
+    # compiled: the same with the kernels of cuboidlib.kernels (tests/test_kernels.py tests them alone)
     torch.manual_seed(1)
     fast = FastEdgeConv(in_dim, 6, k=5, edges_per_chunk=17).double()  # several chunks, one partial
     _randomise_batchnorms(fast)
@@ -219,10 +223,16 @@ def test_fast_edgeconv_matches_readable_values_gradients_and_running_stats(train
     ref = _readable_copy(fast)
     x = torch.randn(2, 23, in_dim, dtype=torch.float64, requires_grad=True)
     x_ref = x.detach().clone().requires_grad_()
-    y, y_ref = fast(x), ref(x_ref)
+    if compiled:
+        kernels.enable()
+    try:
+        y = fast(x)
+        g = torch.randn_like(y)
+        y.backward(g)
+    finally:
+        kernels.disable()
+    y_ref = ref(x_ref)
     torch.testing.assert_close(y, y_ref, atol=1e-12, rtol=1e-12)
-    g = torch.randn_like(y)
-    y.backward(g)
     y_ref.backward(g)
     torch.testing.assert_close(x.grad, x_ref.grad, atol=1e-12, rtol=1e-9)
     _assert_same_module_state(fast, ref, atol=1e-12)
