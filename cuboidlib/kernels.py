@@ -6,7 +6,10 @@ of a CPU training step, each replacing a labelled piece of Python that stays the
 - ``smallest_k`` for the top-k selection in :func:`cuboidlib.neighbors.knn_indices` (``torch.topk``);
 - ``edge_mlp_forward`` / ``edge_mlp_backward`` for the chunk loops of ``_EdgeMLP`` in
   :mod:`cuboidlib.model` (the gathers, LeakyReLU, max over neighbours, BatchNorm sums and scatters
-  around the matrix products, fused into single passes over memory).
+  around the matrix products, fused into single passes over memory; the backward pass needs two
+  products per chunk instead of three);
+- ``edge_stats`` for ``FastEdgeConv._edge_stats`` (the first BatchNorm's statistics, in float64
+  without float64 copies of the inputs).
 
 They compute the same functions (``tests/test_kernels.py`` compares values and gradients with the
 Python versions and with the readable network in float64) and change only the speed:

@@ -480,7 +480,9 @@ class _EdgeMLP(torch.autograd.Function):
     def _backward_chunks(P_hat, Q_hat, nbr, gamma1, beta1, W2, W2_var, c_mean, harg, g_hmax, slope, rows, batch_stats):
         """The per-edge loop of backward: (dL/dW2, per point i the sum of dL/dz over its edges (i, .),
         per point j the sums of dL/dz and of xhat over the edges (., j) ending at it (the latter only
-        with ``batch_stats``, else None)). ``kernels.cpp``'s edge_mlp_backward is the compiled version."""
+        with ``batch_stats``, else None)). ``kernels.cpp``'s edge_mlp_backward is the compiled version; it
+        returns the same sums computed with two matrix products per chunk instead of three (its comments
+        derive them)."""
         R, C1 = P_hat.shape
         k = nbr.shape[1]
         C2 = W2.shape[0]
@@ -585,17 +587,18 @@ class FastEdgeConv(EdgeConv):
         ``rows`` points at a time, so no (B * N, C) float64 tensor of it is ever stored.
         """
         n_rows, k = nbr.shape
+        in_degree = torch.bincount(nbr.reshape(-1), minlength=n_rows)
+        if _use_compiled(P, k):  # the same sums, compiled (cuboidlib.kernels)
+            mean, var = kernels.ops().edge_stats(P, Q, nbr, in_degree).to(P.dtype)
+            return mean, var
         P64, Q64 = P.double(), Q.double()
-        in_degree = torch.bincount(nbr.reshape(-1), minlength=n_rows).to(P64.dtype)
+        in_degree = in_degree.to(P64.dtype)
         mean = (in_degree @ P64 + k * Q64.sum(0)) / (n_rows * k)
         Qc = Q64 - mean
-        if _use_compiled(P, k):  # the same sum, compiled (cuboidlib.kernels)
-            cross = kernels.ops().edge_cross(P, Q, mean, nbr)
-        else:
-            cross = torch.zeros_like(mean)  # sum_i Qc_i S_i
-            for r0 in range(0, n_rows, rows):
-                S = P64.index_select(0, nbr[r0 : r0 + rows].reshape(-1)).view(-1, k, P.shape[1]).sum(1)
-                cross += (Qc[r0 : r0 + rows] * S).sum(0)
+        cross = torch.zeros_like(mean)  # sum_i Qc_i S_i
+        for r0 in range(0, n_rows, rows):
+            S = P64.index_select(0, nbr[r0 : r0 + rows].reshape(-1)).view(-1, k, P.shape[1]).sum(1)
+            cross += (Qc[r0 : r0 + rows] * S).sum(0)
         sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * cross
         return mean.to(P.dtype), (sq / (n_rows * k)).clamp_min(0).to(P.dtype)
 

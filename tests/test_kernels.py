@@ -130,7 +130,7 @@ def test_edge_mlp_chunk_loops_match_the_python_ones(compiled, dtype, rows):
 
 
 @needs_compiler
-def test_edge_stats_cross_term_matches_the_python_sum(compiled):
+def test_edge_stats_match_the_python_sums(compiled):
     e = _edge_inputs(torch.float32, R=300, C1=16)
     kernels.disable()
     reference = FastEdgeConv._edge_stats(e["P"], e["Q"], e["nbr"], 7)
@@ -143,6 +143,35 @@ def test_edge_stats_cross_term_matches_the_python_sum(compiled):
 # ----------------------------------------------------------------------------------------------
 # The layer and the network
 # ----------------------------------------------------------------------------------------------
+
+
+@needs_compiler
+def test_float32_gradients_of_the_compiled_backward_stay_accurate():
+    # The compiled backward sums v v^T and v over all edges instead of the per-edge dL/dh (two
+    # products per chunk instead of three); u = v - LeakyReLU(beta1) keeps the float32 sums accurate
+    # when v has a large mean (BatchNorm bias 3 here). Both versions against float64.
+    torch.manual_seed(0)
+    conv = FastEdgeConv(32, 32, k=20)
+    with torch.no_grad():
+        conv.bn1.bias.fill_(3.0)
+    x = torch.randn(2, 512, 32) * 0.5 + 2.0
+    g = torch.randn(2, 512, 32)
+
+    def gradients(dtype, use):
+        m = FastEdgeConv(32, 32, k=20).to(dtype)
+        m.load_state_dict(conv.state_dict())
+        (kernels.enable if use else kernels.disable)()
+        try:
+            xx = x.to(dtype, copy=True).requires_grad_()
+            (m(xx) * g.to(dtype)).sum().backward()
+        finally:
+            kernels.disable()
+        return [xx.grad.double()] + [p.grad.double() for p in m.parameters()]
+
+    exact = gradients(torch.float64, False)
+    for use in (False, True):
+        for a, b in zip(gradients(torch.float32, use), exact):
+            assert (a - b).abs().max() <= 1e-3 * b.abs().max()
 
 
 @needs_compiler
