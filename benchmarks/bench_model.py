@@ -123,7 +123,7 @@ def floor_worker(spec: dict) -> dict:
     # the graph of the first layer is that of the 3-D points, each later one that of the previous features
     graph_inputs = [torch.randn(batch, n, 3, generator=gen)]
     graph_inputs += [torch.randn(batch, n, c, generator=gen) for c in config.edge_dims[:-1]]
-    rows = max(1, (spec["edges_per_chunk"] or FastEdgeConv(3, 8, k).edges_per_chunk) // k)
+    rows = FastEdgeConv(3, 8, k, edges_per_chunk=spec["edges_per_chunk"])._chunk_rows(torch.device("cpu"))
     chunks = []  # (edge values of one chunk, second-layer weights, how many such chunks a layer has)
     for width in config.edge_dims:
         full, rest = divmod(batch * n, rows)

@@ -254,6 +254,16 @@ def test_fast_edgeconv_keeps_float32_accuracy_for_clouds_far_from_the_origin():
     assert (fast - exact).abs().max() <= 2 * (reference32 - exact).abs().max()
 
 
+def test_fast_edgeconv_chunks_are_larger_on_a_gpu_unless_given():
+    from cuboidlib.model import _EDGES_PER_CHUNK, _EDGES_PER_CHUNK_GPU
+
+    conv = FastEdgeConv(3, 4, k=16)
+    assert conv._chunk_rows(torch.device("cpu")) == _EDGES_PER_CHUNK // 16
+    assert conv._chunk_rows(torch.device("cuda")) == _EDGES_PER_CHUNK_GPU // 16 > _EDGES_PER_CHUNK // 16
+    assert FastEdgeConv(3, 4, k=16, edges_per_chunk=40)._chunk_rows(torch.device("cuda")) == 2
+    assert FastEdgeConv(3, 4, k=16, edges_per_chunk=5)._chunk_rows(torch.device("cpu")) == 1, "at least one point"
+
+
 def test_fast_edgeconv_gradcheck():
     torch.manual_seed(2)
     conv = FastEdgeConv(3, 4, k=4, edges_per_chunk=10).double()

@@ -213,6 +213,32 @@ def test_committed_checkpoint_comes_with_its_card_and_config(category):
     assert card["test"]["split"] == "test"
 
 
+@pytest.mark.parametrize("stage", ["", "finetune/"])
+def test_paper_scale_config_is_the_chair_recipe_at_the_papers_scale(stage):
+    """configs/paper_scale/ (README, "At paper scale, on a GPU") changes only the scale of the chair recipe."""
+    from cuboidlib.dataset import split_indices
+    from cuboidlib.model import ModelConfig
+    from cuboidlib.train import TrainConfig
+
+    recipe = TrainConfig.load_json(CHECKPOINTS / "configs" / f"{stage}chair.json")
+    large = TrainConfig.load_json(CHECKPOINTS / "configs" / "paper_scale" / f"{stage}chair.json")
+    paper = ModelConfig()
+    sizes = ("k", "edge_dims", "global_dim", "latent_dim", "cuboid_code_dim", "cuboid_feature_dims",
+             "exist_hidden_dim", "seg_dim")
+    assert all(getattr(large.model_config, name) == getattr(paper, name) for name in sizes), "the paper's network"
+    assert large.n_points == 4096 and large.batch_size == 32 and large.n_shapes >= 1000
+    assert len(split_indices(large.n_shapes, large.split_fractions, large.split_seed)["test"]) >= 200
+    assert large.loss_config.existence_min_points == 24, "0.6 % of 4096 points, the authors' own target"
+    scale = {"n_shapes", "n_points", "split_fractions", "batch_size", "max_minutes", "num_threads", "init_from"}
+    changed = {key for key, value in large.to_dict().items() if value != recipe.to_dict()[key]}
+    assert changed - {"model", "loss"} <= scale
+    switches = {key: value for key, value in recipe.model.items() if key not in sizes}
+    assert {key: large.model[key] for key in switches} == switches, "the recipe's switches, on the paper's sizes"
+    assert {**large.loss, "existence_min_points": None} == {**recipe.loss, "existence_min_points": None}
+    if stage:
+        assert large.init_from == "runs/chair_large/best.pt"
+
+
 def test_readme_checkpoint_table_is_the_cards():
     from cuboidlib.release import cards_markdown
 
