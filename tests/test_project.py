@@ -213,6 +213,14 @@ def test_committed_checkpoint_comes_with_its_card_and_config(category):
     assert card["test"]["split"] == "test"
 
 
+def test_every_network_and_config_ships_in_the_package():
+    """pyproject's package data for cuboidlib.networks covers every network, card and config file."""
+    patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    shipped = {path for pattern in patterns["cuboidlib.networks"] for path in CHECKPOINTS.glob(pattern)}
+    committed = {path for suffix in ("*.pt", "*.json") for path in CHECKPOINTS.rglob(suffix)}
+    assert committed and committed <= shipped, sorted(str(p.relative_to(CHECKPOINTS)) for p in committed - shipped)
+
+
 @pytest.mark.parametrize("stage", ["", "finetune/"])
 def test_paper_scale_config_is_the_chair_recipe_at_the_papers_scale(stage):
     """configs/paper_scale/ (README, "At paper scale, on a GPU") changes only the scale of the chair recipe."""
