@@ -2,12 +2,13 @@
 
 Every computation of cuboidlib is device-agnostic; these tests run the parts that matter on CUDA and
 compare with the CPU in float64: the kNN graph, the fast network (values and gradients, against the
-readable one on the CPU), the distance of Eq. (5), and a short training run whose checkpoint then
-loads on the CPU.
+readable one on the CPU), the paper's first EdgeConv at full size (in the GPU's larger chunks), the
+distance of Eq. (5), and a short training run whose checkpoint then loads on the CPU.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import pytest
@@ -16,7 +17,7 @@ import torch
 from cuboidlib.checkpoint import load_model
 from cuboidlib.dataset import load_splits
 from cuboidlib.distance import point_to_cuboid_distance
-from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
 from cuboidlib.neighbors import knn_indices
 from cuboidlib.train import TrainConfig, Trainer
 
@@ -72,6 +73,28 @@ def test_fast_network_on_cuda_matches_the_readable_one_on_the_cpu(input_normals)
             torch.testing.assert_close(q.grad.cpu(), p.grad, atol=1e-9, rtol=1e-7, msg=f"gradient of {name}")
     for (name, b), c in zip(readable.named_buffers(), fast.buffers()):
         torch.testing.assert_close(c.cpu(), b, atol=1e-9, rtol=1e-9, msg=f"buffer {name}")
+
+
+def test_paper_sized_edgeconv_on_cuda_is_the_cpus():
+    """The paper's first EdgeConv on 32 shapes of 4096 points: 2.6 M edges, three of a GPU's chunks."""
+    torch.manual_seed(0)
+    conv = FastEdgeConv(3, 64, k=20).double().train()
+    x = torch.randn(32, 4096, 3, dtype=torch.float64)
+    neighbours = knn_indices(x, 20)
+    upstream = torch.randn(32, 4096, 64, dtype=torch.float64)
+    on_cuda = copy.deepcopy(conv).to(CUDA)
+    assert on_cuda._chunk_rows(torch.device(CUDA)) * 20 * 2 < 32 * 4096 * 20, "several chunks"
+    results = []
+    for net, device in ((conv, "cpu"), (on_cuda, CUDA)):
+        y = net(x.to(device), neighbours.to(device))
+        (y * upstream.to(device)).sum().backward()
+        results.append((y.cpu(), [p.grad.cpu() for p in net.parameters()], [b.cpu() for b in net.buffers()]))
+    (y_cpu, grads_cpu, buffers_cpu), (y_cuda, grads_cuda, buffers_cuda) = results
+    torch.testing.assert_close(y_cuda, y_cpu, atol=1e-9, rtol=1e-9)
+    for g_cuda, g_cpu in zip(grads_cuda, grads_cpu):
+        torch.testing.assert_close(g_cuda, g_cpu, atol=1e-8, rtol=1e-8)
+    for b_cuda, b_cpu in zip(buffers_cuda, buffers_cpu):
+        torch.testing.assert_close(b_cuda, b_cpu, atol=1e-9, rtol=1e-9)
 
 
 def test_point_to_cuboid_distance_on_cuda_is_the_cpus():
