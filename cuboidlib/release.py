@@ -8,7 +8,8 @@ writes a JSON card beside it (``chair.json``) holding
 
 * ``command``: the command that trained and published it, ``git_commit`` of the source tree;
 * ``machine``: CPU count, training processes (DDP world size), torch threads per process (the
-  config's ``num_threads``, else the publishing process's), torch version, device;
+  config's ``num_threads``, else the publishing process's), torch version, the config's device, and
+  ``gpu``: the name of the GPU the released network was scored on (None on the CPU);
 * ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run, and the
   validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
   saturation at every validation), with its values at 15, 30 and 60 minutes;
@@ -37,6 +38,7 @@ from pathlib import Path
 import torch
 
 from .checkpoint import load_checkpoint, load_model, save_checkpoint
+from .config import resolve_device
 from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
@@ -132,11 +134,13 @@ def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, n
     (S, N, 3); ``normals`` (S, N, 3) for a network that reads them (``ModelConfig.input_normals`` not "none")."""
     was_training = model.training
     model.eval()
+    device = next(model.parameters()).device  # the shapes move there batch by batch
     try:
         features, centroids = [], []
         for start in range(0, len(points), batch_size):
-            chunk = points[start:start + batch_size]
-            out = model(chunk, None if normals is None else normals[start:start + batch_size], sample_latent=False)
+            chunk = points[start:start + batch_size].to(device)
+            chunk_normals = None if normals is None else normals[start:start + batch_size].to(device)
+            out = model(chunk, chunk_normals, sample_latent=False)
             exists = out.exist_probs > 0.5
             features.append(out.cuboid_features[exists])
             centroids.append(allocation_weighted_centers(out.W, chunk)[exists])
@@ -224,10 +228,12 @@ def publish_run(
     training = _training_summary(run_dir, state.get("step"), config.selection)
     earlier = _earlier_stage(config)
     splits = load_splits(config)
+    device = resolve_device("auto")  # the network runs on a GPU when there is one (the baseline on the CPU)
     translation = None
     if config.loss_config.centers_from_allocation:
         model = CuboidAbstractionNet(config.model_config)
         model.load_state_dict(state["model"])
+        model.to(device)
         val = _features_and_centroids(model, splits["val"].points, splits["val"].normals)  # unchanged by the fit
         before = _head_rms(model, *val)
         fit_translation_head(model, splits["train"].points, normals=splits["train"].normals)
@@ -237,7 +243,7 @@ def publish_run(
                        "rms_error_validation_after": round(_head_rms(model, *val), 5)}
         state["model"] = model.state_dict()
     save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
-    model, _ = load_model(dest)
+    model, _ = load_model(dest, device=device)
     shapes = splits["test"]
     start = time.perf_counter()
     centroids = config.loss_config.centers_from_allocation
@@ -255,7 +261,8 @@ def publish_run(
         "machine": {"cpus": os.cpu_count(), "processes": state.get("world_size", 1),
                     "torch_threads": config.num_threads or torch.get_num_threads(),
                     "torch": torch.__version__, "python": platform.python_version(),
-                    "device": config.device},
+                    "device": config.device,
+                    "gpu": torch.cuda.get_device_name(device) if device.type == "cuda" else None},
         "training": training,
         **({"initialised_from": earlier} if earlier else {}),
         "config": config.to_dict(),

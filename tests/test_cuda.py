@@ -121,3 +121,28 @@ def test_a_run_trained_on_cuda_loads_and_runs_on_the_cpu(tmp_path):
     points, _ = _cloud(batch=1, n=128)
     out = model.eval()(points.float())
     assert torch.isfinite(out.centers).all() and torch.isfinite(out.W).all()
+
+
+def test_a_run_trained_on_cuda_is_released_there_and_loads_on_the_cpu(tmp_path):
+    # the release fits the translation head and scores the network on the GPU, the k-means baseline on the CPU
+    from cuboidlib.losses import LossConfig
+    from cuboidlib.release import publish_run, translation_head_error
+
+    config = TrainConfig(category="chair", n_shapes=20, n_points=128, batch_size=4, max_steps=3, checkpoint_every=3,
+                         validate_every=3, model=SMALL, loss=LossConfig(centers_from_allocation=True), seed=0,
+                         device=CUDA)
+    splits = load_splits(config)
+    Trainer(config, tmp_path / "run", quiet=True, splits=splits).run()
+    best = tmp_path / "run" / "best.pt"
+    state = torch.load(best, weights_only=True)
+    bias = [k for k in state["model"] if k.startswith("abstraction.D_cp.existence.") and k.endswith(".bias")][-1]
+    state["model"][bias].fill_(5.0)  # every cuboid exists, so the translation head has cuboids to be fitted to
+    torch.save(state, best)
+    card = publish_run(tmp_path / "run", tmp_path / "net.pt", command="cuboidlib train (test)")
+    released, _ = load_model(tmp_path / "net.pt")
+    assert next(released.parameters()).device.type == "cpu"
+    error = translation_head_error(released, splits["val"].points)
+    assert error == pytest.approx(card["translation_head"]["rms_error_validation_after"], abs=1e-4)
+    network = card["test"]["results"][0]
+    assert card["test"]["n_shapes"] == len(splits["test"]) and network["n_ac"] > 0
+    assert card["machine"]["gpu"] == torch.cuda.get_device_name(), "the card names the GPU"
