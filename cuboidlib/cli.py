@@ -125,9 +125,12 @@ def _add_train_command(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar and no messages")
     p.add_argument("--finetune", metavar="FILE",
                    help="then a second stage in the same command: train FILE's config (TrainConfig fields, as "
-                   "--config) from OUT/best.pt into OUT/finetune; the flags and --set apply to the first stage; "
-                   "--release releases the second; --resume continues the stage that was interrupted. The "
-                   "committed networks: --config configs/<category>.json --finetune configs/finetune/<category>.json")
+                   "--config) from OUT/best.pt into OUT/finetune, on the first stage's shapes (the data fields FILE "
+                   "leaves out are the first stage's, those it sets must agree); the data and device flags "
+                   "(--category, --shapes, --points, --data-dir, --data-seed, --split, --split-seed, --device, "
+                   "--threads, --compiled-kernels) apply to both stages, the other flags and --set to the first; "
+                   "--release releases the second; --resume continues the stage that was interrupted. The committed "
+                   "networks: --config configs/<category>.json --finetune configs/finetune/<category>.json")
     p.add_argument("--release", metavar="FILE.pt",
                    help="after training, copy best.pt (weights and config only) to FILE.pt, score it on the test "
                    "split with the baseline and write the card FILE.json (command, config, training time, metrics)")
@@ -184,6 +187,20 @@ def _train_config_from_args(args):
     return TrainConfig.from_dict(data)
 
 
+def _finetune_config_from_args(args, first):
+    """The second stage's config: --finetune FILE, the data fields it leaves out taken from the first stage, then
+    the data and device flags, which apply to both stages (:func:`cuboidlib.train.train_then_finetune` then checks
+    that both stages select the same shapes)."""
+    from .config import read_config_file
+    from .train import DATA_FIELDS, TrainConfig
+
+    file = read_config_file(args.finetune)
+    inherited = {key: first.to_dict()[key] for key in DATA_FIELDS if key not in file}
+    both = (*DATA_FIELDS, "device", "num_threads", "compiled_kernels")
+    given = {key: getattr(args, key) for key in both if getattr(args, key) is not None}
+    return TrainConfig.from_dict({**file, **inherited, **given})
+
+
 def _check_writable_file(path: str, suffix: str, option: str) -> None:
     """Refuse, before any work, an output file that could not be written at the end."""
     import tempfile
@@ -201,10 +218,10 @@ def _check_writable_file(path: str, suffix: str, option: str) -> None:
 
 
 def _cmd_train(args) -> int:
-    from .train import Trainer, TrainConfig, TrainingDiverged, _Distributed, train_then_finetune
+    from .train import Trainer, TrainingDiverged, _Distributed, train_then_finetune
 
     config = _train_config_from_args(args)
-    finetune = TrainConfig.load_json(args.finetune) if args.finetune else None
+    finetune = _finetune_config_from_args(args, config) if args.finetune else None
     if args.release:
         _check_writable_file(args.release, ".pt", "--release")
     if args.print_config:

@@ -76,6 +76,7 @@ __all__ = [
     "train_then_finetune",
     "train_with_snapshots",
     "FINETUNE_DIR",
+    "DATA_FIELDS",
     "LOSS_TERMS",
     "DIAGNOSTICS",
     "VALIDATION_SCORES",
@@ -95,6 +96,9 @@ LR_SCHEDULES = ("constant", "cosine")
 #: Model selection (which weights ``best.pt`` holds): those of the lowest validation loss, or the last
 #: validated ones (the end of a falling learning rate), with how a card names each.
 SELECTIONS = {"validation_loss": "lowest validation loss", "last": "last weights"}
+#: Fields of :class:`TrainConfig` that select the shapes a run trains, validates and is tested on: the two
+#: stages of :func:`train_then_finetune` must agree on all of them.
+DATA_FIELDS = ("category", "n_shapes", "n_points", "data_dir", "data_seed", "split_fractions", "split_seed")
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -787,7 +791,8 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
     """The committed networks' recipe in one call: train ``config`` in ``out_dir``, then train ``finetune``
     from the first stage's ``best.pt`` in ``out_dir/finetune``.
 
-    ``finetune.init_from`` is replaced by ``out_dir/best.pt``. Under ``torchrun`` both stages share one
+    ``finetune.init_from`` is replaced by ``out_dir/best.pt``. Both stages must select the same shapes (the
+    fields of :data:`DATA_FIELDS`), else ``ValueError`` before any training. Under ``torchrun`` both stages share one
     process group. ``resume``: continue the second stage if it has begun (the first is then done and
     skipped, its result None), else resume the first and run the second.
     Returns the two stages' :class:`TrainResult` (the released network is the second stage's ``best.pt``).
@@ -798,6 +803,12 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
         second = TrainConfig.load_json("data_samples/checkpoints/configs/finetune/chair.json")
         train_then_finetune(first, second, "runs/chair")   # runs/chair/finetune/best.pt
     """
+    first, second = config.to_dict(), finetune.to_dict()
+    differ = [f"{key} {first[key]!r} / {second[key]!r}" for key in DATA_FIELDS if first[key] != second[key]]
+    if differ:
+        raise ValueError("the second stage must train on the first stage's shapes, but the two configs select "
+                         f"different data (first / second: {'; '.join(differ)}); give both the same values (with "
+                         "cuboidlib train --finetune, the data flags apply to both stages, --set to the first only)")
     out_dir = Path(out_dir)
     second_dir = out_dir / FINETUNE_DIR
     second = finetune.replace(init_from=str(out_dir / "best.pt"))

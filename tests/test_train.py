@@ -719,6 +719,33 @@ def test_finetune_runs_both_stages_in_one_command_as_two_commands_would(tmp_path
     assert (tmp_path / "one" / "log.csv").read_text() == first_log
 
 
+def test_finetune_trains_on_the_first_stages_shapes(tmp_path, tiny, capsys):
+    config, _ = tiny
+    first = config.replace(max_steps=1).save_json(tmp_path / "first.json")
+    # data and device flags apply to both stages; data fields the second file leaves out are the first stage's
+    partial = tmp_path / "partial.json"
+    second = {"max_steps": 1, "lr": 1e-3, "batch_size": 4, "model": config.model, "loss": config.loss}
+    partial.write_text(json.dumps(second))
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(first), "--finetune", str(partial), "--out", str(out), "--quiet",
+                 "--data-seed", "3", "--threads", "1"]) == 0
+    stages = [TrainConfig.load_json(out / "config.json"), TrainConfig.load_json(out / "finetune" / "config.json")]
+    for stage in stages:
+        assert stage.data_seed == 3 and stage.num_threads == 1 and stage.n_shapes == config.n_shapes
+    assert stages[1].n_points == config.n_points != TrainConfig().n_points and stages[1].lr == 1e-3
+    # a second file that selects other shapes is refused before anything is trained
+    other = config.replace(n_points=config.n_points + 8).save_json(tmp_path / "other.json")
+    assert main(["train", "--config", str(first), "--finetune", str(other), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "must train on the first stage's shapes" in err
+    assert f"n_points {config.n_points} / {config.n_points + 8}" in err
+    assert not (tmp_path / "x").exists()
+    # --set changes the first stage only, so it cannot make the two stages' shapes differ unnoticed
+    assert main(["train", "--config", str(first), "--finetune", str(first), "--out", str(tmp_path / "x"),
+                 "--set", "n_shapes=12"]) == 2
+    assert "n_shapes 12 / " in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
 def test_release_of_a_centroid_network_fits_its_translation_head(tmp_path, tiny):
     from cuboidlib.release import read_card, translation_head_error
 
