@@ -3,7 +3,8 @@
 Every computation of cuboidlib is device-agnostic; these tests run the parts that matter on CUDA and
 compare with the CPU in float64: the kNN graph, the fast network (values and gradients, against the
 readable one on the CPU), the paper's first EdgeConv at full size (in the GPU's larger chunks), the
-distance of Eq. (5), and a short training run whose checkpoint then loads on the CPU.
+distance of Eq. (5), and short training runs whose checkpoint, and whose release (translation-head fit
+and test scores on the GPU), then load on the CPU.
 """
 
 from __future__ import annotations
