@@ -803,8 +803,8 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
         second = TrainConfig.load_json("data_samples/checkpoints/configs/finetune/chair.json")
         train_then_finetune(first, second, "runs/chair")   # runs/chair/finetune/best.pt
     """
-    first, second = config.to_dict(), finetune.to_dict()
-    differ = [f"{key} {first[key]!r} / {second[key]!r}" for key in DATA_FIELDS if first[key] != second[key]]
+    data = [(key, getattr(config, key), getattr(finetune, key)) for key in DATA_FIELDS]
+    differ = [f"{key} {a!r} / {b!r}" for key, a, b in data if a != b]
     if differ:
         raise ValueError("the second stage must train on the first stage's shapes, but the two configs select "
                          f"different data (first / second: {'; '.join(differ)}); give both the same values (with "
