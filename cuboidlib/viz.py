@@ -40,6 +40,8 @@ __all__ = [
     "plot_cuboids_plotly_slider",
     "plot_cuboids_matplotlib",
     "plot_cuboids_matplotlib_grid",
+    "figure_bundle",
+    "show_figure",
 ]
 
 #: 30 distinct colours (hex); cuboid m is drawn in PALETTE[m % 30]. The first ten are matplotlib's
@@ -426,3 +428,57 @@ def plot_cuboids_matplotlib_grid(
                                 title=None if titles is None else titles[k], **kwargs)
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.93, wspace=0, hspace=0.08)
     return fig
+
+
+# ----------------------------------------------------------------------------------------------
+# Display: the interactive figure and its static twin in one output
+# ----------------------------------------------------------------------------------------------
+
+
+def figure_bundle(fig, static, dpi: int = 110) -> dict:
+    """The MIME bundle of a plotly figure with a PNG of its static twin.
+
+    Args:
+        fig: a ``plotly.graph_objects.Figure``.
+        static: a matplotlib ``Figure`` that draws the same content (for example from
+            :func:`plot_cuboids_matplotlib_grid`); it is closed after rendering.
+        dpi: resolution of the PNG, at least 100.
+
+    Returns:
+        A dict with the keys ``application/vnd.plotly.v1+json`` (what JupyterLab draws),
+        ``image/png`` (base64, what viewers without JavaScript draw) and ``text/plain``.
+    """
+    import base64
+    import io
+
+    import matplotlib.pyplot as plt
+    import plotly.graph_objects as go
+    import plotly.io as pio
+    from matplotlib.figure import Figure
+
+    if not isinstance(fig, go.Figure):
+        raise TypeError(f"fig must be a plotly Figure, got {type(fig).__name__}")
+    if not isinstance(static, Figure):
+        raise TypeError(f"static must be a matplotlib Figure, got {type(static).__name__}")
+    if isinstance(dpi, bool) or not isinstance(dpi, int) or dpi < 100:
+        raise ValueError(f"dpi must be an integer of at least 100, got {dpi!r}")
+    buffer = io.BytesIO()
+    static.savefig(buffer, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(static)
+    bundle = dict(pio.renderers["plotly_mimetype"].to_mimebundle(fig.to_dict()))
+    bundle["image/png"] = base64.b64encode(buffer.getvalue()).decode("ascii")
+    bundle["text/plain"] = f"<plotly figure with a static twin, {len(fig.data)} traces>"
+    return bundle
+
+
+def show_figure(fig, static, dpi: int = 110) -> None:
+    """Display ``fig`` (plotly) and its static twin ``static`` (matplotlib) as one notebook output.
+
+    The arguments are those of :func:`figure_bundle`. Outside IPython nothing is shown.
+    """
+    bundle = figure_bundle(fig, static, dpi)
+    try:
+        from IPython.display import display
+    except ImportError:  # pragma: no cover - IPython ships with jupyterlab
+        return
+    display(bundle, raw=True)

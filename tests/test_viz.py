@@ -19,6 +19,7 @@ from cuboidlib.geometry import Cuboids, cuboid_corners  # noqa: E402
 from cuboidlib.viz import (  # noqa: E402
     PALETTE,
     cuboid_color,
+    figure_bundle,
     plot_cuboids_matplotlib,
     plot_cuboids_matplotlib_grid,
     plot_cuboids_plotly,
@@ -265,3 +266,31 @@ def test_matplotlib_needs_a_3d_axes(scene):
     with pytest.raises(TypeError, match="ax must be a matplotlib 3D axes"):
         plot_cuboids_matplotlib(ax, points, labels, cuboids)
     plt.close(fig)
+
+
+def test_figure_bundle_holds_the_interactive_figure_and_a_png_twin():
+    import base64
+
+    import plotly.graph_objects as go
+
+    fig = go.Figure(go.Scatter3d(x=[0, 1], y=[0, 1], z=[0, 1]))
+    static = plt.figure(figsize=(3, 3))
+    static.add_subplot(projection="3d").plot([0, 1], [0, 1], [0, 1])
+    bundle = figure_bundle(fig, static, dpi=100)
+    assert bundle["application/vnd.plotly.v1+json"]["data"][0]["type"] == "scatter3d"
+    png = base64.b64decode(bundle["image/png"])
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    assert width >= 250 and height >= 250   # 3 inches at 100 dpi, less the tight crop's margins
+    assert not plt.fignum_exists(static.number)   # the static twin is closed once rendered
+
+
+def test_figure_bundle_rejects_a_missing_twin_and_a_low_resolution():
+    import plotly.graph_objects as go
+
+    with pytest.raises(TypeError, match="static must be a matplotlib Figure"):
+        figure_bundle(go.Figure(), None)
+    with pytest.raises(ValueError, match="dpi must be an integer of at least 100"):
+        figure_bundle(go.Figure(), plt.figure(), dpi=72)
+    with pytest.raises(TypeError, match="fig must be a plotly Figure"):
+        figure_bundle(plt.figure(), plt.figure())
