@@ -65,7 +65,7 @@ def _keys(runs, *fields) -> set[tuple]:
 # ----------------------------------------------------------------------------------------------
 
 
-# The committed recipe's per-category choices (README, "The recipe"): animal tails hold about 26 of 1024 points;
+# The committed recipe's per-category choices (data_samples/checkpoints/README.md, "The recipe"): animal tails hold about 26 of 1024 points;
 # airplanes use fewer cuboids than the paper's 11.8 with lambda_1 = 0.02, and their engines get no cuboid with 0.005
 EXISTENCE_MIN_POINTS = {"airplane": 24, "chair": 24, "table": 24, "animal": 8}
 LAMBDA_COMPACT = {"airplane": 0.001, "chair": 0.02, "table": 0.02, "animal": 0.02}

@@ -223,7 +223,8 @@ def test_every_network_and_config_ships_in_the_package():
 
 @pytest.mark.parametrize("stage", ["", "finetune/"])
 def test_paper_scale_config_is_the_chair_recipe_at_the_papers_scale(stage):
-    """configs/paper_scale/ (README, "At paper scale, on a GPU") changes only the scale of the chair recipe."""
+    """configs/paper_scale/ (data_samples/checkpoints/README.md, "At paper scale, on a GPU") changes only the scale
+    of the chair recipe."""
     from cuboidlib.dataset import split_indices
     from cuboidlib.model import ModelConfig
     from cuboidlib.train import TrainConfig
