@@ -107,7 +107,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.9, wspace=0, hspace=0.1)
     path = stem.with_suffix(".png")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return [path]
 

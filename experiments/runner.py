@@ -435,13 +435,13 @@ def draw_abstractions(records: list[dict], scale: "Scale", stem: Path, row_label
         for i in range(len(test)):
             items.append((test.points[i], pred.labels[i], pred.cuboids, None, i))
             titles.append(f"{row_label(record)}\n{config.category} {int(test.indices[i])}: {int(pred.cuboids.exists[i].sum())} cuboids")
-    fig = plot_cuboids_matplotlib_grid(items, titles, cols=min(shapes, len(items)), panel_size=2.8,
+    fig = plot_cuboids_matplotlib_grid(items, titles, cols=min(shapes, len(items)), panel_size=3.0,
                                        max_points=1024, point_size=2.0)
     fig.suptitle(title + (" (QUICK run: meaningless)" if scale.quick else ""), fontsize=10,
                  y=1 + 0.3 / fig.get_figheight())  # above the panels' two-line titles; the saved figure grows to fit
     path = stem.with_suffix(".png")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80, bbox_inches="tight")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return [path]
 

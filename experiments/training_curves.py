@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     fig = draw(args.checkpoints)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(dir=args.out.parent, suffix=".png", delete=False) as tmp:
-        fig.savefig(tmp.name, dpi=90)
+        fig.savefig(tmp.name, dpi=110)
     os.replace(tmp.name, args.out)  # atomic: a reader never sees half a file
     for category in CATEGORIES:
         marks = curve_marks(*training_curve(read_card(args.checkpoints / f"{category}.pt"))[:2])
