@@ -53,7 +53,7 @@ from ._checks import as_float_tensor, check_finite, check_shape
 from .checkpoint import load_model
 from .geometry import Cuboids
 from .losses import allocation_weighted_centers
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .model import CuboidAbstractionNet
 
 __all__ = [

@@ -39,7 +39,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .applications import abstract_shapes
 from .baseline import fit_cluster_boxes
 from .metrics import (

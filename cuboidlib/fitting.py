@@ -59,7 +59,7 @@ import torch
 from tqdm import tqdm
 
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .baseline import kmeans
 from .distance import nearest_surface_distance, point_to_cuboid_distance
 from .geometry import Cuboids, standardize_quaternion
