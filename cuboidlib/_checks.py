@@ -126,3 +126,9 @@ def check_positive(t: torch.Tensor, name: str, allow_zero: bool = False) -> None
         idx = tuple(int(i) for i in torch.nonzero(bad)[0])
         rule = "non-negative" if allow_zero else "positive"
         raise ValueError(f"{name} must be {rule}; the entry at index {idx} is {float(t.detach()[idx]):.6g}")
+
+
+def check_int(value, name: str, minimum: int) -> None:
+    """An integer (not a bool) of at least ``minimum``, else ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")

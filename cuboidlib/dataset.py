@@ -3,7 +3,7 @@
 :class:`PointCloudDataset` reads one shape at a time; :class:`ShapeSet` holds many as stacked
 tensors (what training and evaluation use), :func:`split_indices` assigns shapes to train /
 validation / test by a seeded permutation, and :func:`load_splits` does both for a
-:class:`~cuboidlib.train.TrainConfig` (a procedural collection or a folder of files).
+:class:`DataConfig` (a procedural collection or a folder of files).
 :func:`add_noise` / :func:`noisy_splits` jitter the points as the paper's noise experiment does
 (Table 4).
 
@@ -30,14 +30,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
 
-from .config import derive_seed
+from ._checks import check_int
+from .config import ConfigDict, derive_seed
 from .io import (
     MESH_SUFFIXES,
     POINT_CLOUD_SUFFIXES,
@@ -48,18 +49,64 @@ from .io import (
     shapenet_part_files,
     shapenet_part_labels,
 )
-from .shapes import PART_NAMES, ShapeCollection
-
-if TYPE_CHECKING:
-    from .train import TrainConfig
+from .shapes import CATEGORIES, PART_NAMES, ShapeCollection, make_collection
 
 __all__ = [
+    "DataConfig", "DATA_FIELDS",
     "PAPER_ROTATIONS_DEG", "PointCloudDataset", "rotate_about_y", "ShapeSet", "split_indices", "load_shapes",
     "load_splits",
     "data_layout",
     "add_noise",
     "noisy_splits",
 ]
+
+@dataclass
+class DataConfig(ConfigDict):
+    """Which shapes a run reads and how they are split. :class:`~cuboidlib.train.TrainConfig` extends it.
+
+    category: procedural category ("chair", "table", "airplane", "animal"); with ``data_dir`` it only
+        names the category in logs.
+    n_shapes: shapes in the procedural collection (ignored with ``data_dir``).
+    n_points: points per shape (paper: 4096); for files, a random subset of this size (meshes are
+        sampled with this many points).
+    data_seed: seed of the collection (or of the subsets drawn from files).
+    data_dir: a folder of point-cloud / mesh files to use instead of a procedural collection.
+    split_fractions: (train, validation, test) fractions of the shapes, summing to 1.
+    split_seed: seed of the permutation that assigns shapes to the splits.
+    """
+
+    category: str = "chair"
+    n_shapes: int = 512
+    n_points: int = 4096
+    data_seed: int = 0
+    data_dir: str | None = None
+    split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
+    split_seed: int = 0
+
+    def __post_init__(self) -> None:
+        name = type(self).__name__
+        if self.data_dir is None and self.category not in CATEGORIES:
+            raise ValueError(f"{name}.category must be one of {CATEGORIES}, got {self.category!r}")
+        for key in ("n_shapes", "n_points"):
+            check_int(getattr(self, key), f"{name}.{key}", minimum=1)
+        for key in ("data_seed", "split_seed"):
+            check_int(getattr(self, key), f"{name}.{key}", minimum=0)
+        fractions = self.split_fractions
+        if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
+            raise ValueError(f"{name}.split_fractions must be (train, validation, test), got {fractions!r}")
+        self.split_fractions = tuple(float(f) for f in fractions)
+        train, val, test = self.split_fractions
+        if train <= 0 or val <= 0 or test < 0 or abs(train + val + test - 1) > 1e-6:
+            raise ValueError(
+                f"{name}.split_fractions must be (train > 0, validation > 0, test >= 0) summing to 1, "
+                f"got {fractions!r}"
+            )
+        if self.data_dir is not None:
+            self.data_dir = str(self.data_dir)
+
+
+#: The fields of :class:`DataConfig`: two runs with equal values read the same shapes.
+DATA_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(DataConfig))
 
 #: The paper's augmentation angles for the animal set (degrees about the up axis), Sec. 4.1.
 PAPER_ROTATIONS_DEG: tuple[float, ...] = (-10.0, -5.0, 0.0, 5.0, 10.0)
@@ -317,14 +364,13 @@ def _folder_dataset(folder: Path, category: str, n_points: int, seed: int) -> tu
     return PointCloudDataset(_data_files(folder), n_points=n_points, seed=seed), None
 
 
-def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
+def load_shapes(config: DataConfig, progress: bool = False) -> ShapeSet:
     """All shapes of the configured data source as one :class:`ShapeSet` (before splitting).
 
     The source is the procedural collection of ``config.category``, or the folder ``config.data_dir``:
     a ShapeNet-part root, the authors' data layout or any folder of mesh / point cloud files
     (:func:`data_layout`; for the first two, ``config.category`` picks the category).
     """
-    from .shapes import make_collection
 
     if config.data_dir is None:
         collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
@@ -357,7 +403,7 @@ def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
     )
 
 
-def load_splits(config: "TrainConfig", progress: bool = False) -> dict[str, ShapeSet]:
+def load_splits(config: DataConfig, progress: bool = False) -> dict[str, ShapeSet]:
     """The "train", "val" and "test" :class:`ShapeSet` of a configuration (see :func:`split_indices`)."""
     shapes = load_shapes(config, progress)
     return {name: shapes.subset(idx) for name, idx in split_indices(len(shapes), config.split_fractions,

@@ -32,6 +32,7 @@ __all__ = [
     "slot_consistency_loss",
     "LossConfig",
     "LossTerms",
+    "LOSS_TERMS",
     "total_loss",
 ]
 
@@ -333,6 +334,11 @@ class LossConfig(ConfigDict):
                       **overrides})
 
 
+#: The scalar terms of :class:`LossTerms`, in log-file order: Eq. (9)'s total and its four terms, then the
+#: course's slot consistency (measured at every step, added to the total only when its weight is positive).
+LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl", "consistency")
+
+
 @dataclass
 class LossTerms:
     """The total loss and its terms, each averaged over the batch (scalars), plus W and w used."""
@@ -342,12 +348,13 @@ class LossTerms:
     compactness: torch.Tensor
     existence: torch.Tensor
     kl: torch.Tensor
+    consistency: torch.Tensor
     W: torch.Tensor
     portions: torch.Tensor
 
     def as_floats(self) -> dict[str, float]:
-        """The five scalar terms as plain floats (for logs and progress bars)."""
-        return {k: getattr(self, k).detach().item() for k in ("total", "reconstruction", "compactness", "existence", "kl")}
+        """The :data:`LOSS_TERMS` as plain floats (for logs and progress bars)."""
+        return {k: getattr(self, k).detach().item() for k in LOSS_TERMS}
 
 
 def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: LossConfig = LossConfig(),
@@ -383,10 +390,12 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
     kl = kl_divergence(output.mu, output.logvar)
     recons, compact, exist, kl = recons.mean(), compact.mean(), exist.mean(), kl.mean()
     total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
+    consistency = slot_consistency_loss(centers, w)
     if c.lambda_consistency > 0:
-        total = total + c.lambda_consistency * slot_consistency_loss(centers, w)
+        total = total + c.lambda_consistency * consistency
     if c.centers_from_allocation:
         # No term uses the predicted translation; keep it in the graph with weight 0 so that every parameter
         # gets a (zero) gradient, as DistributedDataParallel requires. The value of the loss is unchanged.
         total = total + 0.0 * output.centers.sum()
-    return LossTerms(total, recons, compact, exist, kl, W, w)
+    return LossTerms(total, recons, compact, exist, kl, consistency.detach() if c.lambda_consistency == 0 else
+                     consistency, W, w)

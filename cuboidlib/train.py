@@ -60,11 +60,11 @@ import torch
 
 from . import kernels
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
-from .config import ConfigDict, derive_seed, read_config_file, resolve_device
-from .dataset import ShapeSet, load_splits
-from .losses import LossConfig, total_loss
+from ._checks import check_int
+from .config import derive_seed, read_config_file, resolve_device
+from .dataset import DATA_FIELDS, DataConfig, ShapeSet, load_splits
+from .losses import LOSS_TERMS, LossConfig, total_loss
 from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation, read_normals_from_start
-from .shapes import CATEGORIES
 
 __all__ = [
     "TrainConfig",
@@ -73,17 +73,14 @@ __all__ = [
     "TrainingDiverged",
     "TrainResult",
     "Trainer",
+    "Distributed",
     "train_then_finetune",
     "train_with_snapshots",
     "FINETUNE_DIR",
-    "DATA_FIELDS",
-    "LOSS_TERMS",
     "DIAGNOSTICS",
     "VALIDATION_SCORES",
 ]
 
-#: The loss terms logged at every step (Eq. (9) and its four terms), in log-file order.
-LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl")
 #: Diagnostics logged beside the loss terms: the mean number of cuboids with existence above 0.5, the
 #: fraction of points whose allocation is saturated (largest weight above 0.999) and the median gap
 #: between the best and second-best affinity logit (see :func:`cuboidlib.model.allocation_saturation`).
@@ -96,9 +93,6 @@ LR_SCHEDULES = ("constant", "cosine")
 #: Model selection (which weights ``best.pt`` holds): those of the lowest validation loss, or the last
 #: validated ones (the end of a falling learning rate), with how a card names each.
 SELECTIONS = {"validation_loss": "lowest validation loss", "last": "last weights"}
-#: Fields of :class:`TrainConfig` that select the shapes a run trains, validates and is tested on: the two
-#: stages of :func:`train_then_finetune` must agree on all of them.
-DATA_FIELDS = ("category", "n_shapes", "n_points", "data_dir", "data_seed", "split_fractions", "split_seed")
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -121,19 +115,11 @@ _WEIGHT_NEUTRAL = ("affinity_temperature",)
 
 
 @dataclass
-class TrainConfig(ConfigDict):
+class TrainConfig(DataConfig):
     """Everything a training run depends on. Defaults: the paper's (Sec. 3.4.5 and Sec. 4.1).
 
-    Data:
-        category: procedural category ("chair", "table", "airplane", "animal"); with ``data_dir``
-            it only names the category in logs.
-        n_shapes: shapes in the procedural collection (ignored with ``data_dir``).
-        n_points: points per shape (paper: 4096). For files: a random subset of this size (meshes
-            are sampled with this many points).
-        data_seed: seed of the collection (or of the subsets drawn from files).
-        data_dir: a folder of point-cloud / mesh files to use instead of a procedural collection.
-        split_fractions: (train, validation, test) fractions of the shapes, summing to 1.
-        split_seed: seed of the permutation that assigns shapes to the splits.
+    Data: the fields of :class:`~cuboidlib.dataset.DataConfig`, which this class extends (so a
+        TrainConfig is the data config of its run, and config files stay flat).
     Model and loss: ``model`` a :class:`ModelConfig` dict, ``loss`` a :class:`LossConfig` dict
         (either objects or dicts may be given; missing keys take their defaults).
     Optimisation: Adam with ``lr`` (paper: 6e-4; constant, as in the paper, or with ``lr_schedule``
@@ -158,13 +144,6 @@ class TrainConfig(ConfigDict):
         C++ compiler).
     """
 
-    category: str = "chair"
-    n_shapes: int = 512
-    n_points: int = 4096
-    data_seed: int = 0
-    data_dir: str | None = None
-    split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
-    split_seed: int = 0
     model: dict = field(default_factory=lambda: ModelConfig().to_dict())
     loss: dict = field(default_factory=lambda: LossConfig().to_dict())
     lr: float = 6e-4
@@ -186,6 +165,7 @@ class TrainConfig(ConfigDict):
     compiled_kernels: bool = False
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if isinstance(self.model, ModelConfig):
             self.model = self.model.to_dict()
         if isinstance(self.loss, LossConfig):
@@ -194,27 +174,14 @@ class TrainConfig(ConfigDict):
             raise ValueError("TrainConfig.model and TrainConfig.loss must be dicts (or ModelConfig / LossConfig)")
         self.model = ModelConfig.from_dict(self.model).to_dict()  # validates and fills in defaults
         self.loss = LossConfig.from_dict(self.loss).to_dict()
-        if self.data_dir is None and self.category not in CATEGORIES:
-            raise ValueError(f"TrainConfig.category must be one of {CATEGORIES}, got {self.category!r}")
-        for name in ("n_shapes", "n_points", "batch_size", "epochs", "checkpoint_every", "validate_every"):
-            _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
-        for name in ("data_seed", "split_seed", "seed"):
-            _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=0)
+        for name in ("batch_size", "epochs", "checkpoint_every", "validate_every"):
+            check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
+        check_int(self.seed, "TrainConfig.seed", minimum=0)
         if not isinstance(self.compiled_kernels, bool):
             raise ValueError(f"TrainConfig.compiled_kernels must be true or false, got {self.compiled_kernels!r}")
         for name in ("max_steps", "num_threads"):
             if getattr(self, name) is not None:
-                _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
-        fractions = self.split_fractions
-        if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
-            raise ValueError(f"TrainConfig.split_fractions must be (train, validation, test), got {fractions!r}")
-        self.split_fractions = tuple(float(f) for f in fractions)
-        train, val, test = self.split_fractions
-        if train <= 0 or val <= 0 or test < 0 or abs(train + val + test - 1) > 1e-6:
-            raise ValueError(
-                "TrainConfig.split_fractions must be (train > 0, validation > 0, test >= 0) summing to 1, "
-                f"got {fractions!r}"
-            )
+                check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"TrainConfig.lr must be a positive number, got {self.lr!r}")
         self.lr = float(self.lr)
@@ -229,7 +196,7 @@ class TrainConfig(ConfigDict):
         if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not 1.0 <= t0 <= 100.0:
             raise ValueError(f"TrainConfig.temperature_start must be a number in [1, 100], got {t0!r}")
         self.temperature_start = float(t0)
-        _check_int(self.temperature_steps, "TrainConfig.temperature_steps", minimum=0)
+        check_int(self.temperature_steps, "TrainConfig.temperature_steps", minimum=0)
         if self.init_from is not None:
             self.init_from = str(self.init_from)
         if self.max_minutes is not None:
@@ -238,8 +205,6 @@ class TrainConfig(ConfigDict):
             self.max_minutes = float(self.max_minutes)
         if not isinstance(self.device, str) or not (self.device in ("auto", "cpu") or self.device.startswith("cuda")):
             raise ValueError(f"TrainConfig.device must be 'auto', 'cpu' or 'cuda[:i]', got {self.device!r}")
-        if self.data_dir is not None:
-            self.data_dir = str(self.data_dir)
 
     @property
     def model_config(self) -> ModelConfig:
@@ -292,11 +257,6 @@ def course_config(category: str, **changes) -> TrainConfig:
                          f"the categories with one: {sorted(p.stem for p in path.parent.glob('*.json'))}")
     config = TrainConfig.load_json(path)
     return config.replace(**changes) if changes else config
-
-
-def _check_int(value, name: str, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -379,7 +339,7 @@ class TrainResult:
     out_dir: str
 
 
-class _Distributed:
+class Distributed:
     """Rank, world size and whether this process started the process group."""
 
     def __init__(self) -> None:
@@ -439,7 +399,7 @@ class Trainer:
         self.config = config
         self.out_dir = Path(out_dir)
         self.quiet = quiet
-        self.dist = _Distributed()
+        self.dist = Distributed()
         self.device = resolve_device(config.device)
         if self.device.type == "cuda" and self.dist.enabled:
             self.device = torch.device("cuda", self.dist.local_rank)
@@ -812,7 +772,7 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
     out_dir = Path(out_dir)
     second_dir = out_dir / FINETUNE_DIR
     second = finetune.replace(init_from=str(out_dir / "best.pt"))
-    group = _Distributed()
+    group = Distributed()
     group.start(resolve_device(config.device))  # the Trainers below then find it and leave it open
     try:
         first_result = None
@@ -851,7 +811,7 @@ def train_with_snapshots(config: TrainConfig, out_dir: str | os.PathLike, stops:
     if not stops:
         raise ValueError("stops is empty: give the steps at which to keep the weights, e.g. (100, 200, 400)")
     for stop in stops:
-        _check_int(stop, "every step of stops", 1)
+        check_int(stop, "every step of stops", 1)
     if any(b <= a for a, b in zip(stops, stops[1:])):
         raise ValueError(f"stops must increase, got {stops}")
     if config.max_minutes is not None:
