@@ -87,10 +87,11 @@ import numpy as np
 import torch
 import trimesh
 
-from ._files import atomic_path, write_text_atomic
+from .files import MESH_FORMATS, atomic_path, write_text_atomic
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
-from .viz import UNLABELLED, cuboid_color
+from .io import read_point_cloud
+from .viz import UNLABELLED, cuboid_color, plot_cuboids_plotly, plot_cuboids_plotly_grid
 
 __all__ = [
     "JSON_FORMAT",
@@ -119,7 +120,8 @@ __all__ = [
 JSON_FORMAT = "cuboidlib-cuboids"
 JSON_VERSION = 1
 COORDINATES = ("original", "normalized")
-MESH_FORMATS = ("glb", "obj", "ply")
+# MESH_FORMATS, part of this module's names, is defined in cuboidlib.files, which the command line reads
+# without importing torch.
 
 #: The texts of the JSON's "convention" entry.
 CONVENTION = {
@@ -655,8 +657,6 @@ def cuboid_part_names(meta: dict) -> list[str | None] | None:
 
 
 def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray | None, list | None]:
-    from .io import read_point_cloud
-
     cuboids, meta = read_cuboids_json(json_path)
     points, labels = np.zeros((0, 3)), None
     if meta.get("points_file"):
@@ -684,8 +684,6 @@ def write_view_html(
     out: the first page (default: ``view.html`` in the folder, or next to the JSON file); page k > 1 is
     ``view_k.html`` beside it. Returns the paths written.
     """
-    from .viz import plot_cuboids_plotly, plot_cuboids_plotly_grid
-
     if isinstance(per_page, bool) or not isinstance(per_page, int) or per_page < 1:
         raise ValueError(f"per_page must be a positive integer, got {per_page!r}")
     source = Path(result)

@@ -23,6 +23,7 @@ from .export import (
 )
 from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention
+from .viz import plot_cuboids_plotly
 
 __all__ = ["AbstractionBatch", "Abstraction", "result_files"]
 
@@ -243,8 +244,6 @@ class Abstraction:
 
     def plot(self, max_points: int = 4000, coordinates: str = "original", **kwargs):
         """An interactive plotly figure: the points coloured by cuboid and the translucent cuboids."""
-        from .viz import plot_cuboids_plotly
-
         points = np.zeros((0, 3)) if self.points is None else self._points_in(self.points, coordinates)
         title = kwargs.pop("title", f"{self.source or 'shape'}: {self.num_existing} of {self.cuboids.num_cuboids} "
                            "cuboids")

@@ -62,7 +62,9 @@ from . import kernels
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
 from ._checks import check_int
 from .config import derive_seed, read_config_file, resolve_device
+from .applications import checkpoint_dir
 from .dataset import DATA_FIELDS, DataConfig, ShapeSet, load_splits
+from .evaluation import predict_cuboids, segmentation_scores
 from .losses import LOSS_TERMS, LossConfig, total_loss
 from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation, read_normals_from_start
 
@@ -249,8 +251,6 @@ def course_config(category: str, **changes) -> TrainConfig:
         >>> course_config("chair", max_minutes=5).model_config.num_cuboids
         16
     """
-    from .applications import checkpoint_dir
-
     path = checkpoint_dir() / "configs" / f"{category}.json"
     if not path.is_file():
         raise ValueError(f"no committed recipe for {category!r} ({path} does not exist); "
@@ -645,8 +645,6 @@ class Trainer:
         """mIoU (label transfer within the validation split), N_AC and box distance of the network now."""
         if self.val_set.labels is None or len(self.val_set) < 2:
             return {}
-        from .evaluation import predict_cuboids, segmentation_scores  # evaluation imports this module
-
         pred, _ = predict_cuboids(self.model, self.val_set, self.config.batch_size,
                                   self.loss_config.centers_from_allocation)
         scores = segmentation_scores(self.val_set, pred)
