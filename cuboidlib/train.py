@@ -1,53 +1,13 @@
-"""Training the network (Sec. 3.4.5): configuration, data splits, the training loop, resuming, DDP.
+"""Training the network (Sec. 3.4.5): the configuration, the loop, and the committed networks' two stages.
 
-The paper trains each category separately with Adam, learning rate 6e-4 and batch size 32 for 1000
-epochs (Sec. 3.4.5); those are the defaults of :class:`TrainConfig`, which also holds the data, the
-model (:class:`~cuboidlib.model.ModelConfig`) and the loss (:class:`~cuboidlib.losses.LossConfig`)
-and round-trips through JSON. :class:`Trainer` runs the loop and the ``cuboidlib train`` command
-wraps it; :func:`train_then_finetune` runs the committed networks' two stages in one call
-(``cuboidlib train --finetune``), and :func:`train_with_snapshots` keeps the weights of a run at chosen
-steps (the lessons look inside a run that way).
-
-**Data** (:mod:`cuboidlib.dataset`). A procedural collection (:func:`cuboidlib.shapes.make_collection`)
-or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
-validation / test by a seeded permutation (:func:`cuboidlib.dataset.split_indices`). The committed
-networks' recipes are :func:`course_config`. Model selection (``best.pt``) uses the validation split only (its
-lowest loss, or with ``selection="last"`` simply the last weights); the test split is never touched during
-training (``cuboidlib evaluate`` scores it).
-
-**Determinism and exact resume.** Randomness comes from three sources only: the order of the shapes
-(a permutation per epoch seeded by ``(seed, epoch)``, so it needs no saved state), the offsets along
-the normals of the distance of Eq. (5) (one ``torch.Generator``) and the VAE noise of Eq. (1) (a
-second generator). The initial weights come from ``seed``. A checkpoint stores the weights, the Adam
-state, the step and both generator states, so that a run killed at any point and resumed from its
-last checkpoint ends with bitwise the same weights as an uninterrupted run (float32 on the CPU,
-same thread count). Training batches are full batches: an epoch has ``n_train // batch_size`` steps
-(the last incomplete batch of each permutation is skipped).
-
-**Divergence.** After every forward pass the network's outputs and the loss terms are checked, after
-every backward pass the gradients and after every update the weights; a NaN or infinity raises
-:class:`TrainingDiverged` naming the step and the bad terms, and nothing is written, so the last good
-checkpoint stays.
-
-**Several processes.** Started by ``torchrun`` (environment variables ``RANK``, ``WORLD_SIZE``,
-``LOCAL_RANK``), the same entry point initialises a process group (gloo on the CPU, nccl on CUDA),
-wraps the model in ``DistributedDataParallel`` and gives rank r the items r, r + W, r + 2W, ... of
-each global batch of ``batch_size`` shapes (``batch_size`` must be divisible by the number of
-processes W). Gradients are averaged over the processes, so every rank holds the same weights.
-BatchNorm is the plain one, not SyncBatchNorm: in training each rank normalises with the statistics
-of its own shard, and DDP copies rank 0's buffers (the running statistics) to the other ranks at the
-start of every forward pass, so these differ between ranks only by each rank's last update.
-Checkpoints hold rank 0's. Only rank 0 validates and writes files; each rank draws its own sampling
-noise, and a run must be resumed with the number of processes that wrote its checkpoint.
-
-Why one file: the configuration, the loop and its checkpoints change together (every field of
-:class:`TrainConfig` is read by the loop, and resuming must know which fields may change); the data
-it reads lives in :mod:`cuboidlib.dataset`, the release of a trained network in :mod:`cuboidlib.release`.
+The paper trains each category separately with Adam, learning rate 6e-4 and batch 32 for 1000 epochs: the
+defaults of :class:`TrainConfig`. :meth:`Trainer.run` is the loop: shuffle, one Adam step on Eq. (9) per
+batch, validate, keep ``best.pt``. Model selection reads the validation split only; the test split is scored
+by ``cuboidlib evaluate``. Resuming, several processes, checkpoints and the log are :mod:`cuboidlib.runs`.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -67,6 +27,8 @@ from .dataset import DATA_FIELDS, DataConfig, ShapeSet, load_splits
 from .evaluation import predict_cuboids, segmentation_scores
 from .losses import LOSS_TERMS, LossConfig, total_loss
 from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation, read_normals_from_start
+from .runs import (Distributed, RunLog, TrainingDiverged, TrainResult, check_finite_weights, check_gradients,
+                   check_resumable, gather_rng_states, save_last)
 
 __all__ = [
     "TrainConfig",
@@ -90,6 +52,8 @@ DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
 #: Scores of the validation split logged at every validation when its shapes carry part labels: the
 #: mIoU by the paper's label transfer, N_AC and the box distance (:func:`cuboidlib.evaluation.segmentation_scores`).
 VALIDATION_SCORES = ("miou", "n_ac", "box_distance")
+#: The columns of ``log.csv``.
+LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",) + VALIDATION_SCORES
 #: Learning-rate schedules: the paper's constant rate, or a half cosine down to ``lr_final``.
 LR_SCHEDULES = ("constant", "cosine")
 #: Model selection (which weights ``best.pt`` holds): those of the lowest validation loss, or the last
@@ -307,71 +271,6 @@ def _diagnostics(out) -> list[torch.Tensor]:
 # ----------------------------------------------------------------------------------------------
 
 
-def _first_names(names: list[str]) -> str:
-    return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
-
-
-class TrainingDiverged(RuntimeError):
-    """Raised when a loss term, a gradient or a weight becomes NaN or infinite; nothing is saved."""
-
-    def __init__(self, step: int, bad: list[str], values: dict[str, float] | None = None, last_checkpoint: str = ""):
-        self.step, self.bad, self.values = step, bad, values or {}
-        shown = ", ".join(f"{k}={v:.4g}" for k, v in self.values.items())
-        msg = f"training diverged at step {step}: non-finite {', '.join(bad)}"
-        if shown:
-            msg += f" ({shown})"
-        msg += f". Nothing was saved for this step; {last_checkpoint or 'no checkpoint had been written yet'}. "
-        msg += "Try a smaller learning rate or check the data."
-        super().__init__(msg)
-
-
-@dataclass
-class TrainResult:
-    """Summary of :meth:`Trainer.run`: where it stopped and why ("finished" or "time budget")."""
-
-    step: int
-    epoch: int
-    stopped: str
-    best_val: float | None
-    best_step: int | None
-    seconds: float
-    last_terms: dict[str, float]
-    out_dir: str
-
-
-class Distributed:
-    """Rank, world size and whether this process started the process group."""
-
-    def __init__(self) -> None:
-        self.world_size = int(os.environ.get("WORLD_SIZE", "1"))
-        self.rank = int(os.environ.get("RANK", "0"))
-        self.local_rank = int(os.environ.get("LOCAL_RANK", "0"))
-        self.owns_group = False
-
-    @property
-    def enabled(self) -> bool:
-        return self.world_size > 1
-
-    @property
-    def is_main(self) -> bool:
-        return self.rank == 0
-
-    def start(self, device: torch.device) -> None:
-        import torch.distributed as dist
-
-        if not self.enabled or dist.is_initialized():
-            return
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-        self.owns_group = True
-
-    def stop(self) -> None:
-        import torch.distributed as dist
-
-        if self.owns_group and dist.is_initialized():
-            dist.destroy_process_group()
-            self.owns_group = False
-
-
 class Trainer:
     """The training loop of the paper's network (Sec. 3.4.5) with checkpoints, resume and DDP.
 
@@ -463,7 +362,7 @@ class Trainer:
             )
         if self.dist.is_main:
             config.save_json(self.out_dir / "config.json")
-            self._prepare_log(resume)
+        self.log = RunLog(self.out_dir / "log.csv", LOG_FIELDS, self.step if resume else None, self.dist.is_main)
 
     # ------------------------------------------------------------------------------ state
 
@@ -504,25 +403,11 @@ class Trainer:
         return config.temperature_start * (final / config.temperature_start) ** (step / config.temperature_steps)
 
     def _restore(self, state: dict) -> None:
-        missing = [k for k in ("optimizer", "step", "rng", "best_val", "elapsed_seconds") if k not in state]
-        if missing:
-            raise ValueError(f"{self.out_dir / 'last.pt'} holds no training state (missing {missing}); "
-                             "only a last.pt written by the trainer can be resumed")
-        stored = TrainConfig.from_dict(state["config"]).to_dict()  # fields added since then take their defaults
-        check_config_matches(stored["model"], self.config.model, "model config")
-        stored_run = {k: v for k, v in stored.items() if k not in RESUMABLE_CHANGES}
-        check_config_matches(stored_run, self.config.run_defining(), "training config")
-        stored_total = min(stored["epochs"] * self.steps_per_epoch, stored.get("max_steps") or math.inf)
-        if self.config.lr_schedule != "constant" and stored_total != self.total_steps:
-            raise ValueError(
-                f"the {self.config.lr_schedule} learning-rate schedule spans the run's {stored_total} steps; "
-                f"resume it with the same epochs / max_steps (this run asks for {self.total_steps} steps)"
-            )
-        if state.get("world_size", 1) != self.dist.world_size:
-            raise ValueError(
-                f"the checkpoint was written by a run of {state.get('world_size', 1)} process(es); resume it with "
-                f"the same number (this run has {self.dist.world_size}) to continue it exactly"
-            )
+        """Continue from ``last.pt``'s state, refusing a checkpoint of another run."""
+        stored = TrainConfig.from_dict(state["config"]).to_dict() if "config" in state else {}
+        stored_total = min(stored.get("epochs", 0) * self.steps_per_epoch, stored.get("max_steps") or math.inf)
+        check_resumable(state, self.out_dir / "last.pt", stored, self.config.to_dict(), RESUMABLE_CHANGES,
+                        stored_total, self.total_steps, self.config.lr_schedule, self.dist.world_size)
         self.model.load_state_dict(state["model"], strict=True)
         self.optimizer.load_state_dict(state["optimizer"])
         self.step = int(state["step"])
@@ -532,65 +417,18 @@ class Trainer:
         self.latent_generator.set_state(state["rng"]["latent"][self.dist.rank])
         self._last_saved = f"the last checkpoint (step {self.step}) is kept"
 
-    def _rng_states(self) -> dict[str, list[torch.Tensor]]:
-        """Every rank's generator states (a collective call when several processes train)."""
-        mine = {"loss": self.loss_generator.get_state(), "latent": self.latent_generator.get_state()}
-        if not self.dist.enabled:
-            return {k: [v] for k, v in mine.items()}
-        import torch.distributed as dist
-
-        out = {}
-        for key, state in mine.items():
-            state = state.to(self.device)  # nccl gathers CUDA tensors, gloo CPU ones
-            gathered = [torch.empty_like(state) for _ in range(self.dist.world_size)]
-            dist.all_gather(gathered, state)
-            out[key] = [g.cpu() for g in gathered]
-        return out
-
-    def _check_weights(self, step: int, values: dict[str, float]) -> None:
-        """Raise :class:`TrainingDiverged` if the update of ``step`` made a weight NaN or infinite."""
-        params = list(self.model.parameters())
-        if bool(torch.stack([torch.isfinite(p).all() for p in params]).all()):
-            return
-        bad = [name for name, p in self.model.named_parameters() if not bool(torch.isfinite(p).all())]
-        raise TrainingDiverged(step, [f"weights after the update ({_first_names(bad)})"], values, self._last_saved)
-
     def save(self, seconds: float) -> None:
         """Write ``last.pt`` (rank 0; every rank takes part in gathering the generator states)."""
-        rng = self._rng_states()
-        if not self.dist.is_main:
-            return
-        save_checkpoint(
-            self.out_dir / "last.pt", self.config.to_dict(), self.model.state_dict(),
-            optimizer=self.optimizer.state_dict(), step=self.step, epoch=self.step // self.steps_per_epoch,
-            rng=rng, best_val=self.best_val, best_step=self.best_step, world_size=self.dist.world_size,
-            elapsed_seconds=self.elapsed + seconds,
-        )
-        self._last_saved = f"the last checkpoint (step {self.step}, {self.out_dir / 'last.pt'}) is kept"
-
-    # -------------------------------------------------------------------------------- logs
-
-    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",) + VALIDATION_SCORES
-
-    def _prepare_log(self, resume: bool) -> None:
-        """Start log.csv, or on resume drop the rows written after the checkpoint's step."""
-        path = self.out_dir / "log.csv"
-        rows = []
-        if resume and path.is_file():
-            with path.open(newline="") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= self.step]
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, self._LOG_FIELDS)
-            writer.writeheader()
-            writer.writerows(rows)
+        rng = gather_rng_states({"loss": self.loss_generator, "latent": self.latent_generator}, self.dist,
+                                self.device)
+        if self.dist.is_main:
+            self._last_saved = save_last(
+                self.out_dir / "last.pt", self.config.to_dict(), self.model, self.optimizer, self.step,
+                self.step // self.steps_per_epoch, rng, self.best_val, self.best_step, self.dist.world_size,
+                self.elapsed + seconds)
 
     def _log(self, split: str, values: dict[str, float], seconds: float) -> None:
-        if not self.dist.is_main:
-            return
-        row = {"step": self.step, "epoch": self.step // self.steps_per_epoch, "split": split,
-               **{k: f"{v:.6g}" for k, v in values.items()}, "seconds": f"{self.elapsed + seconds:.1f}"}
-        with (self.out_dir / "log.csv").open("a", newline="") as f:
-            csv.DictWriter(f, self._LOG_FIELDS).writerow(row)
+        self.log.write(self.step, self.step // self.steps_per_epoch, split, values, self.elapsed + seconds)
 
     # ------------------------------------------------------------------------------ steps
 
@@ -629,16 +467,12 @@ class Trainer:
             raise TrainingDiverged(self.step + 1, bad, {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
         self.optimizer.zero_grad(set_to_none=True)
         terms.total.backward()
-        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
-        if not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
-            names = [n for n, p in self.model.named_parameters()
-                     if p.grad is not None and not bool(torch.isfinite(p.grad).all())]
-            raise TrainingDiverged(self.step + 1, [f"gradients ({_first_names(names)})"],
-                                   {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
+        losses = {k: numbers[k] for k in LOSS_TERMS}
+        check_gradients(self.model, self.step + 1, losses, self._last_saved)
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate(self.step)
         self.optimizer.step()
-        self._check_weights(self.step + 1, {k: numbers[k] for k in LOSS_TERMS})
+        check_finite_weights(self.model, self.step + 1, losses, self._last_saved)
         return numbers, bool(flag.item() > 0)
 
     def _validation_scores(self) -> dict[str, float]:

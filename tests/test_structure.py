@@ -22,7 +22,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("normals", "distance", "metrics", "shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
-    ("results",),                                             # the result types every method returns
+    ("results", "runs"),                                      # the result types; a run's bookkeeping
     ("applications", "baseline"),                             # trained networks' uses (Sec. 4.4), k-means boxes
     ("fitting", "evaluation"),                                # the per-shape fit, the test-split scores
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
