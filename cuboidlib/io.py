@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ._files import atomic_path
+from .files import atomic_path
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
 from .shapes import CATEGORIES, PART_NAMES, make_shape, plot_shapes

@@ -46,10 +46,10 @@ import numpy as np
 import torch
 
 from cuboidlib import load_trained_model
-from cuboidlib._files import write_text_atomic
 from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import label_transfer_split, predict_cuboids
+from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.geometry import Cuboids, quaternion_to_rotation_matrix
 from cuboidlib.metrics import mean_iou, transfer_part_labels
