@@ -49,7 +49,8 @@ import torch.nn.functional as F
 
 from cuboidlib import kernels
 from cuboidlib.losses import LossConfig, total_loss
-from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
+from cuboidlib.edgeconv_fast import FastEdgeConv
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.neighbors import knn_indices
 
 

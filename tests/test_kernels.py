@@ -13,8 +13,9 @@ import pytest
 import torch
 
 from cuboidlib import kernels
+from cuboidlib.edgeconv_fast import FastEdgeConv, _EdgeMLP
 from cuboidlib.losses import LossConfig, total_loss
-from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig, _EdgeMLP
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.neighbors import knn_indices
 from cuboidlib.train import TrainConfig, Trainer
 
