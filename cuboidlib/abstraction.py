@@ -200,7 +200,7 @@ def _refined(pc_points, pc_normals, out: AbstractionBatch, steps: int, fit_confi
     normals = torch.as_tensor(pc_normals, dtype=points.dtype, device=points.device)[None]
     fit = fit_cuboids(points, normals, config, progress=progress, start=out)
     method = {"refine": {"steps": steps, "function": "cuboidlib.fitting.fit_cuboids(start=network)",
-                         "lambda_compact": config.lambda_compact, "seed": config.seed,
+                         "lambda_compact": config.loss.lambda_compact, "seed": config.seed,
                          "converged": bool(fit.converged[0])}}
     return fit, method
 

@@ -64,6 +64,7 @@ from .baseline import kmeans
 from .distance import nearest_surface_distance, point_to_cuboid_distance
 from .geometry import Cuboids, standardize_quaternion
 from .losses import (
+    LossConfig,
     allocation_portions,
     compactness_loss,
     existence_targets,
@@ -75,8 +76,10 @@ from .normalization import normalize
 __all__ = ["FitConfig", "FitResult", "kmeans", "initial_cuboids", "fit_cuboids"]
 
 DISTANCES = ("normal", "nearest_surface")
-ALLOCATIONS = ("soft", "nearest")
 INITS = ("kmeans", "random")
+#: The settings of :class:`~cuboidlib.losses.LossConfig` that the fit reads.
+FIT_LOSS_FIELDS = ("lambda_compact", "compactness_average", "sigma_s", "eps_sps", "eps_ext", "distance", "allocation")
+_NETWORK_ONLY = ("chamfer_samples", "centers_from_allocation", "existence_min_points", "lambda_consistency")
 
 
 @dataclass(frozen=True)
@@ -86,15 +89,12 @@ class FitConfig:
     num_cuboids: M, the number of cuboid slots (the fit decides how many exist); default 16.
     steps: Adam steps. lr: learning rate of the cuboid parameters (centres, quaternions, log half
       sizes); lr_logits: learning rate of the allocation logits.
-    lambda_compact: lambda_1 of Eq. (9), the weight of the compactness loss (paper: 0.1).
-    compactness_average: use the authors' code's form (mean_m sqrt(w_m + eps_sps))^2 = Eq. (6) / M^2
-      (default True, see the module docstring); False gives Eq. (6) as printed.
-    sigma_s: standard deviation of the sampling along the normals in Eq. (5) (paper: 0.05; 0 = none).
-    eps_sps: epsilon of the compactness loss, Eq. (6) (paper: 0.01).
-    eps_ext: existence threshold on the portions w_m (paper: 0.05, Sec. 3.4.3).
-    distance: "normal" (Eq. 5) or "nearest_surface" (the normal-blind ablation of Sec. 4.3).
-    allocation: "soft" (free softmax W, as the segmentation branch) or "nearest" (hard allocation to
-      the closest cuboid under ``distance``, the P2C-Dis ablation of Sec. 4.3).
+    loss: the loss settings, a :class:`~cuboidlib.losses.LossConfig` (or its dict). The fit reads
+      ``lambda_compact`` (lambda_1), ``compactness_average`` (default True here: the authors' code's
+      form, Eq. (6) / M^2), ``sigma_s`` (Eq. 5), ``eps_sps`` (Eq. 6), ``eps_ext`` (Sec. 3.4.3),
+      ``distance`` ("normal" or "nearest_surface") and ``allocation``: "segmentation" (a free softmax
+      W, as the segmentation branch gives) or "nearest_cuboid" (P2C-Dis, Sec. 4.3). The fit has no
+      network, so the settings of the network's other terms must keep their defaults.
     init: "kmeans" (k-means++ seeding and Lloyd iterations on the positions) or "random" (centres at
       M random points); both size each cuboid to its cluster and start W as a soft assignment to the
       nearest centre. The initialisation depends only on the points, ``num_cuboids``, ``init`` and
@@ -118,13 +118,6 @@ class FitConfig:
     steps: int = 300
     lr: float = 0.01
     lr_logits: float = 0.1
-    lambda_compact: float = 0.1
-    compactness_average: bool = True
-    sigma_s: float = 0.05
-    eps_sps: float = 0.01
-    eps_ext: float = 0.05
-    distance: str = "normal"
-    allocation: str = "soft"
     init: str = "kmeans"
     init_sharpness: float = 0.1
     beta2: float = 0.9
@@ -132,12 +125,20 @@ class FitConfig:
     tol: float = 0.02
     restarts: int = 1
     seed: int = 0
+    loss: LossConfig = field(default_factory=lambda: LossConfig(compactness_average=True))
 
     def __post_init__(self) -> None:
-        if self.distance not in DISTANCES:
-            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
-        if self.allocation not in ALLOCATIONS:
-            raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
+        if isinstance(self.loss, dict):
+            object.__setattr__(self, "loss", LossConfig.from_dict({"compactness_average": True, **self.loss}))
+        if not isinstance(self.loss, LossConfig):
+            raise TypeError(f"FitConfig.loss must be a LossConfig or a dict, got {type(self.loss).__name__}")
+        if self.loss.distance not in DISTANCES:
+            raise ValueError(f"FitConfig.loss.distance must be one of {DISTANCES} (the fit has no Chamfer "
+                             f"variant), got {self.loss.distance!r}")
+        unused = [name for name in _NETWORK_ONLY if getattr(self.loss, name) != getattr(LossConfig(), name)]
+        if unused:
+            raise ValueError(f"FitConfig.loss sets {unused}, which only training a network uses; the fit "
+                             f"reads {FIT_LOSS_FIELDS}")
         if self.init not in INITS:
             raise ValueError(f"init must be one of {INITS}, got {self.init!r}")
         for name in ("num_cuboids", "restarts", "seed"):
@@ -151,18 +152,22 @@ class FitConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-        for name in ("lambda_compact", "sigma_s", "eps_sps", "init_sharpness", "tol"):
+        for name in ("init_sharpness", "tol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
         if not (isinstance(self.beta2, (int, float)) and 0 <= self.beta2 < 1):
             raise ValueError(f"beta2 must lie in [0, 1), got {self.beta2!r}")
-        if not 0 <= self.eps_ext < 1:
-            raise ValueError(f"eps_ext must lie in [0, 1), got {self.eps_ext!r}")
+        if not 0 <= self.loss.eps_ext < 1:
+            raise ValueError(f"FitConfig.loss.eps_ext must lie in [0, 1), got {self.loss.eps_ext!r}")
 
     def replace(self, **changes) -> "FitConfig":
-        """A copy with some fields changed (validated again)."""
-        return FitConfig(**{**asdict(self), **changes})
+        """A copy with some fields changed (validated again); a ``loss`` dict is merged into the loss settings."""
+        loss = changes.pop("loss", {})
+        if isinstance(loss, dict):
+            loss = LossConfig.from_dict({**self.loss.to_dict(), **loss})
+        fields_now = {f: getattr(self, f) for f in self.__dataclass_fields__ if f != "loss"}
+        return FitConfig(**{**fields_now, **changes, "loss": loss})
 
 
 @dataclass(kw_only=True)
@@ -415,6 +420,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
     final_loss, initial_*) and "records": per-step (steps, B) tensors of the loss terms.
     """
     b, n, _ = p.shape
+    loss = config.loss
     generator = torch.Generator().manual_seed(config.seed)
     if start is None:
         c0, q0, s0, logits0 = initial_cuboids(p, config, generator)
@@ -425,39 +431,39 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
     centers = c0.clone().requires_grad_(True)
     quat_raw = q0.clone().requires_grad_(True)
     log_sizes = s0.log().requires_grad_(True)
-    logits = logits0.transpose(1, 2).contiguous().requires_grad_(config.allocation == "soft")  # (B, M, N)
+    logits = logits0.transpose(1, 2).contiguous().requires_grad_(loss.allocation == "segmentation")  # (B, M, N)
     groups = [{"params": [centers, quat_raw, log_sizes], "lr": config.lr}]
-    if config.allocation == "soft":
+    if loss.allocation == "segmentation":
         groups.append({"params": [logits], "lr": config.lr_logits})
     optimizer = torch.optim.Adam(groups, betas=(0.9, config.beta2))
 
     def evaluate(offsets: torch.Tensor | None):
         quaternions = quat_raw / torch.linalg.vector_norm(quat_raw, dim=-1, keepdim=True)
         half_sizes = log_sizes.exp()
-        if config.distance == "normal":
+        if loss.distance == "normal":
             d = point_to_cuboid_distance(
                 p, nrm, centers, quaternions, half_sizes, sigma_s=0.0, offsets=offsets, validate=False
             )
         else:
             d = nearest_surface_distance(p, centers, quaternions, half_sizes, validate=False)
-        if config.allocation == "nearest":
+        if loss.allocation == "nearest_cuboid":
             W = nearest_cuboid_allocation(d if blocked is None else d.masked_fill(blocked.transpose(1, 2), math.inf))
         else:  # logits are stored (B, M, N): a softmax over a short LAST axis is many times slower on CPU
             free = logits if blocked is None else logits.masked_fill(blocked, -math.inf)
             W = torch.softmax(free, dim=1).transpose(1, 2)
         w = allocation_portions(W)
         recons = reconstruction_loss(W, d)
-        compact = compactness_loss(w, config.eps_sps, average_over_cuboids=config.compactness_average)
-        return recons + config.lambda_compact * compact, recons, compact, W, w
+        compact = compactness_loss(w, loss.eps_sps, average_over_cuboids=loss.compactness_average)
+        return recons + loss.lambda_compact * compact, recons, compact, W, w
 
-    sampled = config.distance == "normal" and config.sigma_s > 0
+    sampled = loss.distance == "normal" and loss.sigma_s > 0
     records = {key: torch.empty(config.steps, b, dtype=torch.float64)
                for key in ("total", "reconstruction", "compactness", "existing")}
     bar = tqdm(range(config.steps), desc="fitting cuboids", disable=not progress, leave=False)
     for step in bar:
         offsets = None
         if sampled:
-            offsets = config.sigma_s * torch.randn(b, n, generator=generator, dtype=p.dtype).to(p.device)
+            offsets = loss.sigma_s * torch.randn(b, n, generator=generator, dtype=p.dtype).to(p.device)
         total, recons, compact, W, w = evaluate(offsets)
         if not torch.isfinite(total).all():
             total, recons, compact = total.detach(), recons.detach(), compact.detach()
@@ -469,7 +475,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
         optimizer.zero_grad(set_to_none=True)
         total.sum().backward()  # a sum, so every shape's gradient is independent of the batch size
         optimizer.step()
-        existing = (w.detach() > config.eps_ext).sum(dim=-1)
+        existing = (w.detach() > loss.eps_ext).sum(dim=-1)
         for key, value in zip(records, (total, recons, compact, existing)):
             records[key][step] = value.detach().double().cpu()
         if progress and (step % 10 == 0 or step == config.steps - 1):
@@ -480,7 +486,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
     with torch.no_grad():
         final_loss, _, _, W, w = evaluate(None)
         if blocked is None:
-            exists = existence_targets(w, config.eps_ext) > 0
+            exists = existence_targets(w, loss.eps_ext) > 0
         else:  # a refinement keeps the start's slots that still hold a point
             exists = torch.nn.functional.one_hot(W.argmax(dim=-1), W.shape[-1]).any(dim=1) & ~blocked[:, :, 0]
         exists |= w == w.amax(dim=-1, keepdim=True)  # at least one cuboid per shape

@@ -139,8 +139,8 @@ def analyse(name: str, n_refits: int, steps: int) -> dict:
     spacing = float(torch.stack([torch.cdist(test.points[j], test.points[j]).fill_diagonal_(float("inf"))
                                  .min(dim=1).values.median() for j in scored[:20].tolist()]).median())
 
-    fit = FitConfig(steps=steps, lambda_compact=loss.lambda_compact, compactness_average=loss.compactness_average,
-                    sigma_s=loss.sigma_s, eps_sps=loss.eps_sps, distance=loss.distance, normalize=False)
+    fit = FitConfig(steps=steps, normalize=False, loss={k: getattr(loss, k) for k in ("lambda_compact", "compactness_average",
+                    "sigma_s", "eps_sps", "distance")})
     refits = []
     for j in range(len(test)):
         if len(refits) == n_refits or not mixed:
