@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from .applications import abstract_shapes, load_trained_model
-from .config import resolve_device
+from .config import resolve_device, torch_threads
 from .fitting import FitConfig, fit_cuboids
 from .geometry import Cuboids
 from .io import PointCloud, load_point_cloud, validate_point_cloud
@@ -264,7 +264,7 @@ def _orientation_warning(result: Abstraction, scores: dict[str, float]) -> None:
         warnings.warn(OrientationWarning(
             f"{name} looks like it is not +y up: with up {suggested} the network's cuboids reconstruct it "
             f"{scores['y'] / scores[best]:.1f}x better (Chamfer {scores[best]:.3g} against {scores['y']:.3g}); "
-            f"pass up={suggested!r} (--up {suggested}) or up='auto', or up='y' if it is upright"), stacklevel=3)
+            f"pass up={suggested!r} (--up {suggested}) or up='auto', or up='y' if it is upright"), stacklevel=4)  # the caller of abstract()
 
 
 def up_axis_scores(shape, model, *, n_points: int | None = None, seed: int = 0, threshold: float = 0.5,
@@ -352,6 +352,14 @@ def abstract(
         An :class:`~cuboidlib.results.Abstraction` (cuboids normalised, with the normalisation to write
         them back).
     """
+    with torch_threads(1):  # one shape: one thread (see cuboidlib.config.torch_threads)
+        return _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part_names, device, progress,
+                         up, front, refine)
+
+
+def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part_names, device, progress, up, front,
+              refine) -> Abstraction:
+    """:func:`abstract` after its thread count is set."""
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:

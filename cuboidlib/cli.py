@@ -35,6 +35,20 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+
+def _threads(value: str):
+    """--threads: "auto" or a positive integer."""
+    if value == "auto":
+        return value
+    try:
+        number = int(value)
+    except ValueError:
+        number = 0
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of threads or auto, got {value!r}")
+    return number
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The parser of the ``cuboidlib`` command line.
 
@@ -128,10 +142,12 @@ def _add_train_command(sub) -> None:
     p.add_argument("--validate-every", type=int, help="validation loss (and best.pt) every this many steps")
     p.add_argument("--seed", type=int, help="seed of the weights, data order and sampling")
     p.add_argument("--device", help="auto (CUDA when available), cpu or cuda[:i]")
-    p.add_argument("--threads", type=int, dest="num_threads", help="torch.set_num_threads")
-    p.add_argument("--compiled-kernels", action="store_const", const=True,
-                   help="run the CPU hot spots with cuboidlib.kernels (same results, faster; builds them with a "
-                   "C++ compiler on first use)")
+    p.add_argument("--threads", type=_threads, dest="num_threads",
+                   help="torch threads of the training process: a number, or auto (the default: every core that "
+                   "other processes leave free, followed as the load changes)")
+    p.add_argument("--compiled-kernels", action=argparse.BooleanOptionalAction, default=None,
+                   help="the CPU hot spots in C++ (cuboidlib.kernels: the same results, faster). Default: used "
+                   "wherever a C++ compiler can build them (once per machine); --no-compiled-kernels turns them off")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="any other field, VALUE in JSON, e.g. --set loss.lambda_compact=0.2 --set model.k=16")
     p.add_argument("--print-config", action="store_true", help="print the resulting config and exit")
@@ -179,6 +195,8 @@ def _train_config_from_args(args):
                                            "batch_size", "checkpoint_every", "validate_every", "seed", "device",
                                            "num_threads", "compiled_kernels")}
     merge({k: v for k, v in flags.items() if v is not None})
+    if data.get("num_threads") is None:
+        data["num_threads"] = "auto"  # the command line follows the free cores unless told otherwise
     if args.num_cuboids is not None:
         data["model"] = {**data["model"], "num_cuboids": args.num_cuboids}
     for item in args.set:

@@ -18,12 +18,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
 
-__all__ = ["ConfigDict", "read_config_file", "derive_seed", "resolve_device"]
+__all__ = ["ConfigDict", "read_config_file", "derive_seed", "resolve_device", "torch_threads"]
 
 
 def _json_types(value):
@@ -88,3 +89,20 @@ def resolve_device(name: str) -> torch.device:
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
     return device
+
+
+@contextmanager
+def torch_threads(count: int | None):
+    """Run the block with ``count`` torch threads (None: leave the count as it is), then restore the count.
+
+    One shape is fitted or abstracted fastest with one thread, and a second thread only waits when another
+    process holds the other core (``python benchmarks/bench_abstract.py`` measures both).
+    """
+    before = torch.get_num_threads()
+    if count is not None and count != before:
+        torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)

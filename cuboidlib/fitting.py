@@ -61,6 +61,7 @@ from tqdm import tqdm
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
 from .results import AbstractionBatch
 from .baseline import kmeans
+from .config import torch_threads
 from .distance import nearest_surface_distance, point_to_cuboid_distance
 from .geometry import Cuboids, standardize_quaternion
 from .losses import (
@@ -349,7 +350,8 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
 
     r = config.restarts
     begin = None if start is None else _normalised_start(start, center, scale, p)
-    run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress, begin)
+    with torch_threads(1 if b * r == 1 else None):  # one shape: one thread (see torch_threads)
+        run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress, begin)
     # keep, for every shape, the restart with the lowest final loss (rows b * R ... b * R + R - 1)
     best = run["final_loss"].view(b, r).argmin(dim=1) + torch.arange(b, device=p.device) * r
     pick = {key: value[best] for key, value in run.items() if key != "records"}

@@ -27,7 +27,7 @@ from .dataset import DATA_FIELDS, DataConfig, ShapeSet, load_splits
 from .evaluation import predict_cuboids, segmentation_scores
 from .losses import LOSS_TERMS, LossConfig, total_loss
 from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation, read_normals_from_start
-from .runs import (Distributed, RunLog, TrainingDiverged, TrainResult, check_finite_weights, check_gradients,
+from .runs import (CoreShare, Distributed, RunLog, TrainingDiverged, TrainResult, check_finite_weights, check_gradients,
                    check_resumable, gather_rng_states, save_last)
 
 __all__ = [
@@ -105,7 +105,8 @@ class TrainConfig(DataConfig):
         their parts; ``best.pt`` is only chosen from step S on. S = 0 (default): no warm-up.
     Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
         order, loss and VAE sampling), ``device`` ("auto" = CUDA when available, else CPU),
-        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default), ``compiled_kernels``
+        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default; "auto", the
+        command line's default, follows the cores other processes leave free, :class:`~cuboidlib.runs.CoreShare`), ``compiled_kernels``
         (run the CPU hot spots with :mod:`cuboidlib.kernels`: the same results, a faster step; needs a
         C++ compiler).
     """
@@ -127,8 +128,8 @@ class TrainConfig(DataConfig):
     validate_every: int = 100
     seed: int = 0
     device: str = "auto"
-    num_threads: int | None = None
-    compiled_kernels: bool = False
+    num_threads: int | str | None = None
+    compiled_kernels: bool | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -143,11 +144,13 @@ class TrainConfig(DataConfig):
         for name in ("batch_size", "epochs", "checkpoint_every", "validate_every"):
             check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
         check_int(self.seed, "TrainConfig.seed", minimum=0)
-        if not isinstance(self.compiled_kernels, bool):
-            raise ValueError(f"TrainConfig.compiled_kernels must be true or false, got {self.compiled_kernels!r}")
-        for name in ("max_steps", "num_threads"):
-            if getattr(self, name) is not None:
-                check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
+        if self.compiled_kernels is not None and not isinstance(self.compiled_kernels, bool):
+            raise ValueError(f"TrainConfig.compiled_kernels must be true, false or null (the default: used where they "
+                             f"can be built), got {self.compiled_kernels!r}")
+        if self.max_steps is not None:
+            check_int(self.max_steps, "TrainConfig.max_steps", minimum=1)
+        if self.num_threads is not None and self.num_threads != "auto":
+            check_int(self.num_threads, "TrainConfig.num_threads (or \"auto\")", minimum=1)
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"TrainConfig.lr must be a positive number, got {self.lr!r}")
         self.lr = float(self.lr)
@@ -303,10 +306,13 @@ class Trainer:
         if self.device.type == "cuda" and self.dist.enabled:
             self.device = torch.device("cuda", self.dist.local_rank)
             torch.cuda.set_device(self.device)
-        if config.num_threads is not None:
+        self.core_share = CoreShare() if config.num_threads == "auto" and self.device.type == "cpu" else None
+        if isinstance(config.num_threads, int):
             torch.set_num_threads(config.num_threads)
-        if config.compiled_kernels:
+        if config.compiled_kernels is True:
             kernels.enable()
+        elif config.compiled_kernels is False:
+            kernels.disable()
         if config.batch_size % self.dist.world_size:
             raise ValueError(
                 f"batch_size {config.batch_size} must be divisible by the number of processes {self.dist.world_size}"
@@ -544,6 +550,8 @@ class Trainer:
                     perm, perm_epoch = self._permutation(epoch), epoch
                 batch = perm[position * config.batch_size:(position + 1) * config.batch_size][shard]
                 self.last_terms, over = self._train_step(batch.to(self.device), time.monotonic() >= deadline)
+                if self.core_share is not None:
+                    self.core_share.step()
                 self.step += 1
                 self._log("train", self.last_terms, time.monotonic() - start)
                 bar.update(1)

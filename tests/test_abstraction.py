@@ -205,8 +205,9 @@ def test_up_auto_finds_the_frame_of_a_turned_shape_by_the_networks_reconstructio
     assert len(auto.method["up_auto"]["chamfer"]) == 24
     scores = auto.method["up_auto"]["chamfer"]
     assert scores["z -y"] == min(scores.values()), "the best-scored frame is kept"
-    with pytest.warns(OrientationWarning, match=r"with up z the network's cuboids reconstruct it"):
+    with pytest.warns(OrientationWarning, match=r"with up z the network's cuboids reconstruct it") as caught:
         default = cuboidlib.abstract(cloud, model="chair")
+    assert caught[0].filename == __file__, "the warning points at the caller's line"
     assert auto.chamfer < 0.5 * default.chamfer, "the default +y up fits far worse"
     assert default.method["up_check"]["suggested"] == "z" and default.frame is None, "a warning, not a turn"
     with pytest.raises(ValueError, match="up='auto' chooses the frame by the network"):
@@ -252,3 +253,19 @@ def test_abstract_reads_the_input_and_loads_the_network_once_whatever_up(monkeyp
         calls.update(read=0, load=0)
         cuboidlib.abstract(path, model="chair", up=up)
         assert calls == {"read": 1, "load": 1}, f"up={up!r}: {calls}"
+
+
+def test_abstract_and_the_fit_of_one_shape_run_on_one_thread_and_restore_the_callers_count(monkeypatch):
+    import cuboidlib.fitting as fitting
+
+    seen = []
+    optimise = fitting._optimise
+    monkeypatch.setattr(fitting, "_optimise", lambda *a, **k: (seen.append(torch.get_num_threads()), optimise(*a, **k))[1])
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        s = make_shape("chair", 3, n_points=512)
+        cuboidlib.abstract(np.concatenate([s.points, s.normals], 1), model=None, fit_config=FitConfig(steps=2))
+        assert seen == [1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
