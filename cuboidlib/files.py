@@ -18,14 +18,13 @@ MESH_FORMATS = ("glb", "obj", "ply")
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """A temporary path beside ``path`` for a block to write: renamed to ``path`` in one step when the block
-    ends without error, removed otherwise.
+    """A temporary path beside ``path``: renamed to ``path`` when the block ends without error, else removed.
 
     Args:
-        path: the file to write.
+        path: the file to write; its folder is created if missing.
 
     Returns:
-        A context manager yielding the temporary path (same suffix, so writers choose the same format).
+        A context manager yielding the temporary Path (same suffix, so writers choose the same format).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -47,7 +46,7 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
         text: its content.
 
     Returns:
-        ``path``, as a Path.
+        ``path`` as a Path.
     """
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
