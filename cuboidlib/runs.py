@@ -1,4 +1,5 @@
-"""Run bookkeeping around the loop of :mod:`cuboidlib.train`: processes, full-state checkpoints, log, divergence.
+"""Run bookkeeping around the loop of :mod:`cuboidlib.train`: processes, threads, full-state checkpoints, log,
+divergence.
 
 It lives apart so that train.py reads as the paper's Sec. 3.4.5. ``last.pt`` holds the weights, the Adam state,
 the step and every rank's generator states (Eq. (5) offsets, Eq. (1) noise; the shape order is seeded by
@@ -266,13 +267,15 @@ class RunLog:
 
 
 class CoreShare:
-    """Keeps torch's thread count at the number of cores that other processes leave free.
+    """Keeps torch's thread count at the number of cores that other processes leave free (at least 1).
 
-    Next to one busy process on two cores, two threads make a step several times slower than one thread
-    (each waits for the other at every operation, while a core is taken), so the count follows the load:
-    every ``every_seconds``, the cores the other processes used since the last look are read from
-    ``/proc/stat`` (all busy time less this process's own), and the count becomes the cores left, at least 1.
-    Where ``/proc/stat`` cannot be read (not Linux), torch's count is left as it is.
+    A thread on a core another process holds makes the others wait at every operation. The load of the other
+    processes is read from ``/proc/stat`` (all busy time less this process's own); where it cannot be read
+    (not Linux), torch's count is left as it is.
+
+    Args:
+        every_seconds: how often the load is read.
+        cores: the cores to share (default: ``os.cpu_count()``).
     """
 
     def __init__(self, every_seconds: float = 2.0, cores: int | None = None):
@@ -293,7 +296,11 @@ class CoreShare:
         return time.monotonic(), busy / self.tick, time.process_time()
 
     def step(self) -> int:
-        """Call once per training step; returns the thread count the step ran with."""
+        """Count one training step and adjust the thread count for the next ones; call once per step.
+
+        Returns:
+            The thread count the step ran with.
+        """
         threads = torch.get_num_threads()
         self.counts[threads] = self.counts.get(threads, 0) + 1
         now = self._sample()

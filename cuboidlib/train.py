@@ -82,33 +82,33 @@ _WEIGHT_NEUTRAL = ("affinity_temperature",)
 
 @dataclass
 class TrainConfig(DataConfig):
-    """Everything a training run depends on. Defaults: the paper's (Sec. 3.4.5 and Sec. 4.1).
+    """Everything a training run depends on; the defaults are the paper's (Sec. 3.4.5, Sec. 4.1).
 
-    Data: the fields of :class:`~cuboidlib.dataset.DataConfig`, which this class extends (so a
-        TrainConfig is the data config of its run, and config files stay flat).
-    Model and loss: ``model`` a :class:`ModelConfig` dict, ``loss`` a :class:`LossConfig` dict
-        (either objects or dicts may be given; missing keys take their defaults).
-    Optimisation: Adam with ``lr`` (paper: 6e-4; constant, as in the paper, or with ``lr_schedule``
-        "cosine" a half cosine from ``lr`` down to ``lr_final`` over the run's steps), ``init_from``
-        (optional: a checkpoint whose weights start the run instead of a random initialisation, to
-        continue training with another schedule), ``batch_size`` shapes per step (paper: 32, the
-        global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
-        ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time, counted over
-        every session of the run (a run resumed after its budget is used up trains no further step).
-    Model selection: ``selection`` "validation_loss" (default): ``best.pt`` holds the weights of the lowest
-        validation loss; "last": the weights of the last validation (the end of the run), for a run whose
-        falling learning rate is meant to settle the weights at its end.
-    Allocation warm-up (a change of the course's recipe, not the paper's): ``temperature_start`` T_0 >= 1
-        and ``temperature_steps`` S: the affinity of Eq. (2) is divided by a temperature that falls
-        geometrically from T_0 at step 0 to the model's ``affinity_temperature`` at step S and stays
-        there (:meth:`Trainer.affinity_temperature`), so the allocation is soft while the cuboids find
-        their parts; ``best.pt`` is only chosen from step S on. S = 0 (default): no warm-up.
-    Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
-        order, loss and VAE sampling), ``device`` ("auto" = CUDA when available, else CPU),
-        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default; "auto", the
-        command line's default, follows the cores other processes leave free, :class:`~cuboidlib.runs.CoreShare`), ``compiled_kernels``
-        (run the CPU hot spots with :mod:`cuboidlib.kernels`: the same results, a faster step; needs a
-        C++ compiler).
+    It extends :class:`~cuboidlib.dataset.DataConfig` (the data fields), so config files stay flat.
+
+    Attributes:
+        model, loss: :class:`ModelConfig` and :class:`LossConfig` as dicts (objects accepted; missing keys
+            take their defaults).
+        lr: Adam's learning rate (paper: 6e-4).
+        lr_schedule: "constant" (the paper's) or "cosine", a half cosine from ``lr`` to ``lr_final`` over the run.
+        lr_final: the last rate of the cosine schedule.
+        selection: the weights ``best.pt`` holds: "validation_loss", those of the lowest validation loss, or
+            "last", the last validated ones (for a falling learning rate).
+        temperature_start, temperature_steps: the allocation warm-up (the course's, not the paper's): the
+            affinity of Eq. (2) is divided by a temperature falling geometrically from T_0 >= 1 to the model's
+            ``affinity_temperature`` over S steps (:meth:`Trainer.affinity_temperature`); ``best.pt`` is
+            chosen from step S on. S = 0: no warm-up.
+        init_from: optional checkpoint whose weights start the run (a second stage).
+        batch_size: shapes per step, the global batch under ``torchrun`` (paper: 32).
+        epochs: passes over the training split (paper: 1000); max_steps: an optional cap on the steps.
+        max_minutes: stop cleanly (and checkpoint) after this much training time, over every session of the run.
+        checkpoint_every, validate_every: in steps.
+        seed: of the initial weights, data order, loss and VAE sampling.
+        device: "auto" (CUDA when available, else CPU), "cpu" or "cuda[:i]".
+        num_threads: for ``torch.set_num_threads``; None: torch's default; "auto" (the command line's
+            default): the cores other processes leave free (:class:`~cuboidlib.runs.CoreShare`).
+        compiled_kernels: run the CPU hot spots with :mod:`cuboidlib.kernels` (same results, faster);
+            None: wherever a C++ compiler can build them; False: never.
     """
 
     model: dict = field(default_factory=lambda: ModelConfig().to_dict())
@@ -177,14 +177,23 @@ class TrainConfig(DataConfig):
 
     @property
     def model_config(self) -> ModelConfig:
+        """``model`` as a :class:`ModelConfig`."""
         return ModelConfig.from_dict(self.model)
 
     @property
     def loss_config(self) -> LossConfig:
+        """``loss`` as a :class:`LossConfig`."""
         return LossConfig.from_dict(self.loss)
 
     def replace(self, **changes) -> "TrainConfig":
-        """A copy with some fields changed; ``model`` / ``loss`` changes are merged into the dicts."""
+        """A copy with some fields changed.
+
+        Args:
+            **changes: new field values; ``model`` / ``loss`` dicts are merged into the current ones.
+
+        Returns:
+            A new, validated TrainConfig.
+        """
         data = self.to_dict()
         for key in ("model", "loss"):
             if key in changes and isinstance(changes[key], dict):
@@ -193,6 +202,7 @@ class TrainConfig(DataConfig):
         return TrainConfig.from_dict(data)
 
     def save_json(self, path: str | os.PathLike) -> Path:
+        """Write the config as JSON to ``path`` (its folder is created) and return ``path`` as a Path."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
@@ -200,18 +210,31 @@ class TrainConfig(DataConfig):
 
     @classmethod
     def load_json(cls, path: str | os.PathLike) -> "TrainConfig":
-        """Read a JSON config file (any subset of the fields; ``model`` / ``loss`` may be partial)."""
+        """Read a JSON config file.
+
+        Args:
+            path: a JSON file of any subset of the fields (``model`` / ``loss`` may be partial).
+
+        Returns:
+            The config, defaults filled in.
+        """
         return cls.from_dict(read_config_file(path))
 
     def run_defining(self) -> dict:
-        """The fields that determine the weights of every step (all but :data:`RESUMABLE_CHANGES`)."""
+        """The fields that determine the weights of every step, as a dict (all but :data:`RESUMABLE_CHANGES`)."""
         return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
 
 
 def course_config(category: str, **changes) -> TrainConfig:
-    """The recipe of the committed network of ``category``: ``configs/<category>.json`` beside the
-    committed checkpoints (:func:`cuboidlib.applications.checkpoint_dir`), the defaults of
-    :class:`TrainConfig` below it, and ``changes`` on top (``model`` / ``loss`` dicts are merged).
+    """The recipe of the committed network of ``category``.
+
+    Args:
+        category: a category with a ``configs/<category>.json`` beside the committed checkpoints
+            (:func:`cuboidlib.applications.checkpoint_dir`).
+        **changes: fields to change, as :meth:`TrainConfig.replace`.
+
+    Returns:
+        The recipe file over the defaults of :class:`TrainConfig`, with ``changes`` on top.
 
     Example::
 
@@ -235,13 +258,19 @@ def course_config(category: str, **changes) -> TrainConfig:
 def validation_loss(
     model: CuboidAbstractionNet, shapes: ShapeSet, loss_config: LossConfig, batch_size: int, seed: int
 ) -> dict[str, float]:
-    """The loss terms (Eq. (9)) averaged over the shapes, in evaluation mode.
+    """The loss terms (Eq. (9)) averaged over the shapes, in evaluation mode (running BatchNorm, z = mu).
 
-    Evaluation mode: BatchNorm uses its running statistics and z = mu (no VAE noise). The offsets
-    along the normals (Eq. (5)) come from a generator seeded with ``seed``, so the value is a
-    deterministic function of the weights and comparable between validations. Restores the
-    model's training flag. Returns a dict over :data:`LOSS_TERMS` and :data:`DIAGNOSTICS` (mean
-    number of cuboids with existence probability > 0.5, allocation saturation).
+    The model's training flag is restored afterwards.
+
+    Args:
+        model: the network.
+        shapes: the validation shapes.
+        loss_config: the loss settings.
+        batch_size: shapes per forward pass.
+        seed: seeds the offsets along the normals (Eq. (5)), so the value depends on the weights only.
+
+    Returns:
+        ``{name: mean}`` over :data:`LOSS_TERMS` and :data:`DIAGNOSTICS`.
     """
     was_training = model.training
     model.eval()
@@ -277,17 +306,16 @@ def _diagnostics(out) -> list[torch.Tensor]:
 class Trainer:
     """The training loop of the paper's network (Sec. 3.4.5) with checkpoints, resume and DDP.
 
-    ``Trainer(config, out_dir)`` prepares a new run in ``out_dir`` (which must not already hold a
-    ``last.pt``); ``resume=True`` continues from ``out_dir/last.pt`` and refuses if the
-    checkpoint's configuration differs from ``config`` in a field outside
-    :data:`RESUMABLE_CHANGES`. ``run()`` trains until the step budget (``epochs`` / ``max_steps``)
-    or the time budget is used up and returns a :class:`TrainResult`.
+    Rank 0 writes ``config.json``, ``last.pt`` (the full training state, every ``checkpoint_every`` steps
+    and at the end), ``best.pt`` (weights and config of the selected validation) and ``log.csv``.
 
-    Files in ``out_dir`` (rank 0 only): ``config.json``; ``last.pt`` (full training state, every
-    ``checkpoint_every`` steps and at the end); ``best.pt`` (weights and config at the lowest
-    validation loss, checked every ``validate_every`` steps, at the end and when the time budget
-    stops the run); ``log.csv`` (one row per step with the loss terms, one per validation).
-    ``splits`` lets a caller pass already loaded data (as from :func:`load_splits`).
+    Args:
+        config: the run.
+        out_dir: the run folder; a new run refuses one that holds a ``last.pt``.
+        resume: continue from ``out_dir/last.pt``, refused if its config differs in a field outside
+            :data:`RESUMABLE_CHANGES`.
+        quiet: print no progress.
+        splits: already loaded data, as from :func:`load_splits`; None loads it.
     """
 
     def __init__(
@@ -393,7 +421,7 @@ class Trainer:
         self.model.load_state_dict(weights, strict=True)
 
     def learning_rate(self, step: int) -> float:
-        """The rate of optimiser step ``step`` (0-based): constant, or a half cosine over the run."""
+        """The learning rate of optimiser step ``step`` (0-based): constant, or a half cosine over the run."""
         config = self.config
         if config.lr_schedule == "constant" or self.total_steps <= 1:
             return config.lr
@@ -401,8 +429,11 @@ class Trainer:
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
     def affinity_temperature(self, step: int) -> float:
-        """The temperature of optimiser step ``step`` (0-based): T_0 (T / T_0)^(step / S) during the warm-up
-        of S = ``temperature_steps`` steps, then the model's T (``model.affinity_temperature``)."""
+        """The affinity temperature of optimiser step ``step`` (0-based).
+
+        T_0 (T / T_0)^(step / S) during the warm-up of S = ``temperature_steps`` steps, then the model's
+        ``affinity_temperature`` T.
+        """
         final, config = self.config.model_config.affinity_temperature, self.config
         if step >= config.temperature_steps:
             return final
@@ -424,7 +455,11 @@ class Trainer:
         self._last_saved = f"the last checkpoint (step {self.step}) is kept"
 
     def save(self, seconds: float) -> None:
-        """Write ``last.pt`` (rank 0; every rank takes part in gathering the generator states)."""
+        """Write ``last.pt`` (rank 0; every rank takes part in gathering the generator states).
+
+        Args:
+            seconds: training seconds of this session so far.
+        """
         rng = gather_rng_states({"loss": self.loss_generator, "latent": self.latent_generator}, self.dist,
                                 self.device)
         if self.dist.is_main:
@@ -525,7 +560,11 @@ class Trainer:
             )
 
     def run(self) -> TrainResult:
-        """Train until the step budget or the time budget is used up; checkpoint and validate."""
+        """Train until the step budget (``epochs`` / ``max_steps``) or the time budget is used up.
+
+        Returns:
+            The :class:`TrainResult`; the run validates and writes ``last.pt`` where it stops.
+        """
         from tqdm import tqdm
 
         config = self.config
@@ -588,14 +627,22 @@ FINETUNE_DIR = "finetune"
 
 def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str | os.PathLike,
                         resume: bool = False, quiet: bool = False) -> tuple[TrainResult | None, TrainResult]:
-    """The committed networks' recipe in one call: train ``config`` in ``out_dir``, then train ``finetune``
-    from the first stage's ``best.pt`` in ``out_dir/finetune``.
+    """The committed networks' two-stage recipe: ``config`` in ``out_dir``, then ``finetune`` from its ``best.pt``.
 
-    ``finetune.init_from`` is replaced by ``out_dir/best.pt``. Both stages must select the same shapes (the
-    fields of :data:`DATA_FIELDS`), else ``ValueError`` before any training. Under ``torchrun`` both stages share one
-    process group. ``resume``: continue the second stage if it has begun (the first is then done and
-    skipped, its result None), else resume the first and run the second.
-    Returns the two stages' :class:`TrainResult` (the released network is the second stage's ``best.pt``).
+    Under ``torchrun`` both stages share one process group.
+
+    Args:
+        config: the first stage.
+        finetune: the second stage, run in ``out_dir/finetune``; its ``init_from`` becomes ``out_dir/best.pt``.
+            It must select the same shapes (the fields of :data:`DATA_FIELDS`), else ``ValueError`` before
+            any training.
+        out_dir: the first stage's run folder.
+        resume: continue the second stage if it has begun (the first is then skipped), else resume the first.
+        quiet: print no progress.
+
+    Returns:
+        The two stages' :class:`TrainResult`, the first None when it was skipped; the released network is
+        the second stage's ``best.pt``.
 
     Example::
 
@@ -630,16 +677,21 @@ def train_with_snapshots(config: TrainConfig, out_dir: str | os.PathLike, stops:
                          quiet: bool = True) -> tuple[TrainResult | None, dict[int, dict[str, torch.Tensor]]]:
     """Train ``config`` for ``stops[-1]`` steps in ``out_dir``, keeping the weights at step 0 and at each stop.
 
-    The run stops at every step of ``stops`` and is resumed from there (a resumed run continues exactly where it
-    stopped, so these are the weights of one uninterrupted run); the weights of each stop are written to
-    ``out_dir/snapshot_<step>.pt`` (a checkpoint, loaded with ``weights_only``). A second call with the same
-    configuration reuses the folder: a finished run is read back without training, an interrupted one
-    continues. A folder that holds a run of another configuration is refused, never overwritten.
+    The run stops and resumes at every stop, which gives the weights of one uninterrupted run; each is
+    written to ``out_dir/snapshot_<step>.pt``. A second call with the same config reuses the folder (a
+    finished run is read back, an interrupted one continues); a run of another config is refused.
 
-    config: the run (``max_steps`` is replaced by ``stops[-1]``; ``max_minutes`` must be None, since a time
-    budget could stop the run between two stops, and the learning rate constant); stops: increasing step counts; splits: as for :class:`Trainer`.
-    Returns ``(result, snapshots)``: the :class:`TrainResult` of the last piece trained (None when nothing was
-    left to train) and ``{step: state_dict}`` for step 0 and every stop.
+    Args:
+        config: the run; ``max_steps`` is replaced by ``stops[-1]``, ``max_minutes`` must be None and the
+            learning rate constant.
+        out_dir: the run folder.
+        stops: increasing step counts.
+        splits: as for :class:`Trainer`.
+        quiet: print no progress.
+
+    Returns:
+        ``(result, snapshots)``: the :class:`TrainResult` of the last piece trained (None when nothing was
+        left to train) and ``{step: state_dict}`` for step 0 and every stop.
 
     Example::
 
