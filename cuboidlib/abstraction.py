@@ -1,24 +1,16 @@
-"""The one pipeline that makes a shape's cuboid abstraction (:func:`abstract`), from a file or array to an
-:class:`~cuboidlib.results.Abstraction`.
-
-Three lines take a mesh or point cloud file, in any units, to cuboids written next to it::
+"""The one pipeline that makes a shape's cuboid abstraction, :func:`abstract`: from a mesh or point cloud
+file, in any units, or an array, to an :class:`~cuboidlib.results.Abstraction`::
 
     import cuboidlib
     result = cuboidlib.abstract("my_chair.obj", model="chair")   # a committed network; model=None fits
     result.save("out")                                           # out/my_chair.json, .glb, _segmentation.ply
 
-The pipeline is the same for every way of making cuboids: read and normalise the shape
-(:func:`cuboidlib.io.load_point_cloud`: bounding box centred, diagonal 1, normals estimated when
-missing), make cuboids and a segmentation (a trained network, Sec. 3, or the per-shape fit of
-:mod:`cuboidlib.fitting`), measure the Chamfer distance on the normalised shape, and, when the input
-has part labels, give every cuboid the part most of its points carry (Sec. 4.2). The result keeps
-the normalised cuboids and the normalisation, so it can be written in the input's own coordinates
-(the default) or in the normalised ones. The command-line tool's ``fit`` and ``abstract`` are this
-function and :meth:`Abstraction.save`.
-
-:func:`abstract` reads the input and loads the network once. The orientation check (``up=None``) and
-``up="auto"`` sit above one pass, :func:`_network_pass`, which runs the network on the loaded cloud in
-all the candidate frames at once.
+Every method goes the same way: read and normalise the shape (:func:`cuboidlib.io.load_point_cloud`),
+make cuboids and a segmentation (a trained network, Sec. 3, or the per-shape fit of
+:mod:`cuboidlib.fitting`), measure the Chamfer distance, and give every cuboid the part most of its points
+carry when the input has part labels (Sec. 4.2). The command line's ``fit`` and ``abstract`` are this
+function and :meth:`Abstraction.save`. The input is read and the network loaded once; the orientation
+check and ``up="auto"`` score every candidate frame in one network pass (:func:`_network_pass`).
 """
 
 from __future__ import annotations
@@ -44,9 +36,8 @@ from .results import Abstraction, AbstractionBatch, result_files
 __all__ = ["abstract", "frame_rotation", "candidate_frames", "up_axis_scores", "AXES", "REFINE_LR", "OrientationWarning",
            "ORIENTATION_RATIO", "FRAME_SCORE", "Abstraction", "AbstractionBatch", "result_files"]
 
-#: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``).
-#: The fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not
-#: (on 16 test chairs, 100 steps: Chamfer 1.57e-3 against 1.86e-3 with 0.01; the network: 2.34e-3).
+#: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``):
+#: the fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not.
 REFINE_LR = 0.003
 
 #: ``abstract(shape, model)`` without ``up`` warns when another up axis gives the network's cuboids a
@@ -54,9 +45,8 @@ REFINE_LR = 0.003
 ORIENTATION_RATIO = 0.5
 
 #: How the candidate frames of the orientation check and of ``up="auto"`` are scored: the Chamfer
-#: distance with 512 surface samples against at most 512 of the input's points, evenly spaced (a
-#: sixteenth of the work of the result's own Chamfer distance at 1,024 points, which keeps the
-#: default 4,096 samples and every point).
+#: distance with 512 surface samples against at most FRAME_SCORE_POINTS of the input's points, evenly
+#: spaced (cheaper than the result's own Chamfer distance, which keeps 4096 samples and every point).
 FRAME_SCORE = ChamferConvention(n_samples=512)
 FRAME_SCORE_POINTS = 512
 
@@ -73,16 +63,15 @@ AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": 
 
 
 def frame_rotation(up: str = "y", front: str | None = None) -> np.ndarray:
-    """The rotation R (3, 3) that takes a shape with up axis ``up`` and front ``front`` into the course's
-    frame (+y up, facing +z): ``p_course = R @ p``.
+    """The rotation R that takes a shape with axes ``up`` and ``front`` into the course's frame (+y up, facing +z).
 
     Args:
-        up, front: "x", "y", "z", "-x", "-y" or "-z". The default front is +z, or -y for a z-up shape
-            (Blender and many CAD exports), +y for -z up.
+        up, front: "x", "y", "z", "-x", "-y" or "-z", at right angles. The default front is +z, or -y for a
+            z-up shape (Blender and many CAD exports), +y for -z up.
 
     Returns:
-        (3, 3) float64, a signed permutation. Example: ``frame_rotation("z")`` maps (0, 0, 1) to
-        (0, 1, 0) and (0, -1, 0) to (0, 0, 1).
+        (3, 3) float64, a signed permutation with ``p_course = R @ p``. Example: ``frame_rotation("z")`` maps
+        (0, 0, 1) to (0, 1, 0) and (0, -1, 0) to (0, 0, 1).
     """
     if up not in AXES:
         raise ValueError(f"up must be one of {', '.join(AXES)}, got {up!r}")
@@ -101,7 +90,14 @@ def _default_front(up: str) -> str:
 
 
 def candidate_frames(front: str | None = None) -> list[tuple[str, str]]:
-    """Every (up, front) pair of axes at right angles (24), or the 4 ups at right angles to ``front``."""
+    """The (up, front) pairs of axes at right angles: all 24, or the 4 with the given ``front``.
+
+    Args:
+        front: an axis of :data:`AXES`, or None.
+
+    Returns:
+        A list of (up, front) pairs of axis names.
+    """
     pairs = [(u, f) for u in AXES for f in AXES if abs(int(np.dot(AXES[u], AXES[f]))) == 0]
     return [(u, f) for u, f in pairs if front is None or f == front]
 
@@ -335,15 +331,12 @@ def abstract(
         part_names: names of the input's part labels, for the JSON.
         device: "cpu", "cuda[:i]" or "auto".
         progress: show the fit's progress bar.
-        up, front: the input's up axis and the direction its front faces (:func:`frame_rotation`); the
-            networks were trained on +y up, facing +z. The result is written back in the input's axes.
-            ``up=None`` (default) is +y; with a network it also scores the network with each of the six
-            axes as up (:func:`up_axis_scores`) and warns (:class:`OrientationWarning`) when another one
-            reconstructs the shape much better; ``method["up_check"]`` keeps the scores. ``up="y"``
-            skips the check. ``up="auto"`` (with a network) scores the 24 frames (with ``front`` given,
-            the 4 ups at right angles to it) and keeps the best; ``method["up_auto"]`` records the
-            choice and every frame's score. Keep ``n_points`` at the network's training size: the
-            choice is only as good as the network on that input.
+        up, front: the input's up axis and the way its front faces (:func:`frame_rotation`); the networks
+            were trained +y up, facing +z, and the result is written back in the input's axes. None
+            (default): +y, and with a network a check of the six up axes (:func:`up_axis_scores`, scores in
+            ``method["up_check"]``) that warns (:class:`OrientationWarning`) when another one reconstructs
+            the shape much better; "y" skips the check. "auto" (with a network): the best of the 24 frames,
+            or of the 4 with the given ``front``, recorded in ``method["up_auto"]``.
         refine: with a network, this many steps of the per-shape fit started from the network's
             cuboids and allocation (``fit_cuboids(start=...)``, default ``FitConfig(lr=REFINE_LR)``):
             tighter cuboids that keep the network's slots, and so its part correspondence.

@@ -32,15 +32,16 @@ __all__ = ["AbstractionBatch", "Abstraction", "result_files"]
 class AbstractionBatch:
     """Cuboids and segmentations of B shapes, as every method makes them (network, fit, k-means boxes).
 
-    The batch form of :class:`Abstraction`, in the coordinates the shapes were given in (normalised
-    ones for a network). Fields that a method does not produce are None.
+    The batch form of :class:`Abstraction`, in the coordinates the shapes were given in (normalised ones
+    for a network). Fields a method does not produce are None.
 
-    cuboids: :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) with ``exists`` (B, M).
-    labels: (B, N) long, each point's cuboid, in [0, M) and always an existing one (the
-      segmentation), or None when no points were given (shapes decoded from latent codes).
-    W: (B, N, M) the soft allocation of the points to the cuboids (Eq. 3), or None.
-    exist_probs: (B, M) existence probabilities (the network's delta_m), or None.
-    z: (B, latent_dim) the network's latent codes, or None.
+    Attributes:
+        cuboids: :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) with ``exists`` (B, M).
+        labels: (B, N) int64, each point's cuboid, always an existing one (the segmentation); None without
+            points (shapes decoded from latent codes).
+        W: (B, N, M) the soft allocation of the points to the cuboids (Eq. 3), or None.
+        exist_probs: (B, M) existence probabilities delta_m, or None.
+        z: (B, latent_dim) the network's latent codes, or None.
 
     Example::
 
@@ -64,7 +65,7 @@ class AbstractionBatch:
         return self.cuboids.num_cuboids
 
     def num_existing(self) -> torch.Tensor:
-        """(B,) long, the number of existing cuboids of every shape."""
+        """(B,) int64, the number of existing cuboids of every shape."""
         return self.cuboids.exists.sum(dim=1)
 
     def item_batch(self, i: int) -> "AbstractionBatch":
@@ -100,15 +101,18 @@ class AbstractionBatch:
 
 @dataclass
 class Abstraction:
-    """The cuboid abstraction of ONE shape. The cuboids are stored in NORMALISED coordinates.
+    """The cuboid abstraction of ONE shape, stored in NORMALISED coordinates with the normalisation.
 
-    cuboids: :class:`~cuboidlib.geometry.Cuboids` (1, M, ...) with ``exists``, normalised frame.
-    center (3,), scale: the input's normalisation (original = normalized * scale + center).
-    points (N, 3), normals (N, 3): the normalised input (or None); labels (N,): cuboid index of every
-    point, the segmentation (or None).
-    part_labels (M,): semantic part label of each cuboid, -1 unknown (or None); part_names their names.
-    chamfer, chamfer_convention: Chamfer distance on the normalised shape and how it was measured.
-    source: the input file name; method: a dict of JSON types saying how the cuboids were made.
+    Attributes:
+        cuboids: :class:`~cuboidlib.geometry.Cuboids` (1, M, ...) with ``exists``, normalised, course frame.
+        center, scale: (3,) and a float, the input's normalisation: original = normalised * scale + center.
+        points, normals: (N, 3) the normalised input in the course's frame, or None.
+        labels: (N,) each point's cuboid (the segmentation), or None.
+        part_labels: (M,) each cuboid's semantic part, -1 unknown, or None; part_names: their names.
+        chamfer, chamfer_convention: the Chamfer distance on the normalised shape and how it was measured.
+        source: the input file's name; method: a dict of JSON types saying how the cuboids were made.
+        frame: (3, 3) the rotation R with p_course = R @ p (:func:`cuboidlib.abstraction.frame_rotation`),
+            or None for the identity.
 
     Example::
 
@@ -165,18 +169,30 @@ class Abstraction:
         return int(self.cuboids.exists.sum())
 
     def cuboids_in(self, coordinates: str = "original") -> Cuboids:
-        """The cuboids (1, M, ...) in the input's ``"original"`` coordinates or the ``"normalized"`` ones
-        (bounding box centred, diagonal 1, in the input's own axes; :attr:`cuboids` holds them in the
-        course's frame, +y up, which differs when the input came with another ``up``)."""
+        """The cuboids in the input's own axes, in its original or its normalised coordinates.
+
+        Args:
+            coordinates: "original" or "normalized" (bounding box centred, diagonal 1). :attr:`cuboids`
+                holds them in the course's frame, +y up, which differs when the input had another ``up``.
+
+        Returns:
+            :class:`~cuboidlib.geometry.Cuboids` (1, M, ...).
+        """
         if coordinates not in ("original", "normalized"):
             raise ValueError(f"coordinates must be 'original' or 'normalized', got {coordinates!r}")
         cuboids = self._to_input_axes(self.cuboids)
         return cuboids if coordinates == "normalized" else denormalize_cuboids(cuboids, self.center, self.scale)
 
     def numpy(self, coordinates: str = "original") -> dict[str, np.ndarray]:
-        """The EXISTING cuboids as arrays: ``centers`` (K, 3), ``rotations`` (K, 3, 3) (columns are the
-        cuboid's axes), ``sizes`` (K, 3) (full edge lengths), ``index`` (K,) their slot m, and
-        ``part_labels`` (K,) (-1 unknown); K = :attr:`num_existing`."""
+        """The EXISTING cuboids as numpy arrays, K = :attr:`num_existing`.
+
+        Args:
+            coordinates: "original" or "normalized", as in :meth:`cuboids_in`.
+
+        Returns:
+            A dict: ``centers`` (K, 3), ``rotations`` (K, 3, 3) (columns: the cuboid's axes), ``sizes``
+            (K, 3) full edge lengths, ``index`` (K,) their slots m, ``part_labels`` (K,) (-1 unknown).
+        """
         c = self.cuboids_in(coordinates)
         keep = c.exists[0].cpu()
         rotations = quaternion_to_rotation_matrix(c.quaternions[0].detach().cpu().double(), validate=False)
@@ -190,7 +206,15 @@ class Abstraction:
         }
 
     def to_dict(self, coordinates: str = "original", points_file: str | None = None) -> dict:
-        """The JSON document of the result (schema: :mod:`cuboidlib.export`), cuboids in ``coordinates``."""
+        """The JSON document of the result (schema: :mod:`cuboidlib.export`).
+
+        Args:
+            coordinates: the cuboids' coordinates, as in :meth:`cuboids_in`.
+            points_file: the name of the segmented point file to refer to, or None.
+
+        Returns:
+            A dict of JSON types.
+        """
         return cuboids_to_dict(
             self.cuboids_in(coordinates), coordinates=coordinates, center=self.center, scale=self.scale,
             source=self.source, method=self.method, part_labels=self.part_labels, part_names=self.part_names,
@@ -199,7 +223,7 @@ class Abstraction:
 
     @classmethod
     def from_dict(cls, doc: dict, where: str = "cuboid JSON") -> "Abstraction":
-        """Inverse of :meth:`to_dict` (the points are not part of the document: None)."""
+        """Inverse of :meth:`to_dict`; the points are not in the document (None). ``where`` names it in errors."""
         cuboids, meta = cuboids_from_dict(doc, where)
         center, scale = np.asarray(meta["normalization"]["center"]), float(meta["normalization"]["scale"])
         if meta["coordinates"] == "original":
@@ -212,12 +236,17 @@ class Abstraction:
 
     def save(self, folder: str | os.PathLike, stem: str | None = None, formats=("glb",),
              normalized: bool = False) -> dict[str, Path]:
-        """Write ``folder/STEM.json``, the cuboid meshes in ``formats`` (any of glb, obj, ply) and, when
-        the result has points, ``folder/STEM_segmentation.ply`` (points coloured and labelled by cuboid).
+        """Write ``STEM.json``, the cuboid meshes and, with points, ``STEM_segmentation.ply`` (points by cuboid).
 
-        Everything is in the input's original coordinates, or in the normalised ones with
-        ``normalized=True`` (the JSON records which, and the normalisation either way). STEM defaults
-        to the source file's name (else "cuboids"). Returns ``{kind: path}``.
+        Args:
+            folder: the output folder.
+            stem: the files' stem (default: the source file's name, else "cuboids").
+            formats: mesh formats, any of "glb", "obj" (with its .mtl) and "ply".
+            normalized: write the normalised coordinates instead of the input's original ones (the JSON
+                records which, and the normalisation either way).
+
+        Returns:
+            {kind: path} of the files written (:func:`result_files`'s kinds).
         """
         if stem is None:
             stem = Path(self.source).stem if self.source else "cuboids"
@@ -243,7 +272,16 @@ class Abstraction:
         return written
 
     def plot(self, max_points: int = 4000, coordinates: str = "original", **kwargs):
-        """An interactive plotly figure: the points coloured by cuboid and the translucent cuboids."""
+        """An interactive plotly figure: the points coloured by cuboid and the translucent cuboids.
+
+        Args:
+            max_points: at most this many points drawn.
+            coordinates: "original" or "normalized", as in :meth:`cuboids_in`.
+            **kwargs: passed to :func:`cuboidlib.viz.plot_cuboids_plotly` (``title`` has a default).
+
+        Returns:
+            A plotly Figure.
+        """
         points = np.zeros((0, 3)) if self.points is None else self._points_in(self.points, coordinates)
         title = kwargs.pop("title", f"{self.source or 'shape'}: {self.num_existing} of {self.cuboids.num_cuboids} "
                            "cuboids")
@@ -255,8 +293,17 @@ class Abstraction:
 
 
 def result_files(stem: str, formats=("glb",), points: bool = True) -> dict[str, str]:
-    """File names :meth:`Abstraction.save` uses: ``{stem}.json``, ``{stem}.{glb|obj|ply}``,
-    ``{stem}.mtl`` with an OBJ, and ``{stem}_segmentation.ply`` for the points."""
+    """The file names :meth:`Abstraction.save` writes.
+
+    Args:
+        stem: the names' stem.
+        formats: mesh formats, from :data:`cuboidlib.files.MESH_FORMATS`.
+        points: include the segmented point file.
+
+    Returns:
+        {kind: name}: "json" ``{stem}.json``, each format ``{stem}.{fmt}``, "mtl" ``{stem}.mtl`` with an
+        OBJ, and "points" ``{stem}_segmentation.ply``.
+    """
     names = {"json": f"{stem}.json"}
     for fmt in formats:
         if fmt not in MESH_FORMATS:
