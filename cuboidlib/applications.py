@@ -380,6 +380,7 @@ def cluster_by_existence(exists) -> torch.Tensor:
         if ((e != 0) & (e != 1)).any():
             raise ValueError("exists must hold booleans or 0/1 integers")
         e = e != 0
+    # inverse (S,): the group of every shape; counts (G,): the size of every group
     _, inverse, counts = torch.unique(e.cpu().to(torch.uint8), dim=0, return_inverse=True, return_counts=True)
     s = e.shape[0]
     first = torch.full((len(counts),), s, dtype=torch.long).scatter_reduce(

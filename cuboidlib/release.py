@@ -154,8 +154,8 @@ def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, n
             chunk_normals = None if normals is None else normals[start:start + batch_size].to(device)
             out = model(chunk, chunk_normals, sample_latent=False)
             exists = out.exist_probs > 0.5
-            features.append(out.cuboid_features[exists])
-            centroids.append(allocation_weighted_centers(out.W, chunk)[exists])
+            features.append(out.cuboid_features[exists])  # (K, C): the existing cuboids of the chunk
+            centroids.append(allocation_weighted_centers(out.W, chunk)[exists])  # (K, 3)
     finally:
         model.train(was_training)
     return torch.cat(features), torch.cat(centroids)

@@ -202,7 +202,14 @@ class TrainConfig(DataConfig):
         return TrainConfig.from_dict(data)
 
     def save_json(self, path: str | os.PathLike) -> Path:
-        """Write the config as JSON to ``path`` (its folder is created) and return ``path`` as a Path."""
+        """Write the config as JSON.
+
+        Args:
+            path: the file to write; its folder is created if missing.
+
+        Returns:
+            ``path`` as a Path.
+        """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
@@ -421,7 +428,14 @@ class Trainer:
         self.model.load_state_dict(weights, strict=True)
 
     def learning_rate(self, step: int) -> float:
-        """The learning rate of optimiser step ``step`` (0-based): constant, or a half cosine over the run."""
+        """The learning rate of an optimiser step: constant, or a half cosine from ``lr`` to ``lr_final`` over the run.
+
+        Args:
+            step: the step, 0-based.
+
+        Returns:
+            The rate.
+        """
         config = self.config
         if config.lr_schedule == "constant" or self.total_steps <= 1:
             return config.lr
@@ -429,10 +443,14 @@ class Trainer:
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
     def affinity_temperature(self, step: int) -> float:
-        """The affinity temperature of optimiser step ``step`` (0-based).
+        """The affinity temperature of an optimiser step: T_0 (T / T_0)^(step / S) during the warm-up, then T.
 
-        T_0 (T / T_0)^(step / S) during the warm-up of S = ``temperature_steps`` steps, then the model's
-        ``affinity_temperature`` T.
+        Args:
+            step: the step, 0-based.
+
+        Returns:
+            The temperature; S = ``temperature_steps``, T_0 = ``temperature_start``, T the model's
+            ``affinity_temperature``.
         """
         final, config = self.config.model_config.affinity_temperature, self.config
         if step >= config.temperature_steps:

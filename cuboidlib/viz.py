@@ -97,7 +97,7 @@ def _one_shape_cuboids(cuboids, exists, index: int) -> tuple[np.ndarray, np.ndar
             raise ValueError(f"{name} must describe ONE shape, shape (M, ...), got shape {tuple(x.shape)}")
     mask = None if exists is None else _to_numpy(exists)[None]
     c, q, s, mask = validate_cuboids(c[None], q[None], s[None], mask)
-    corners = cuboid_corners(c, q, s, validate=False)[0].double().numpy()
+    corners = cuboid_corners(c, q, s, validate=False)[0].double().numpy()  # (M, 8, 3)
     keep = np.ones(c.shape[1], dtype=bool) if mask is None else mask[0].numpy()
     return corners, keep
 
