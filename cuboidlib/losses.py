@@ -97,6 +97,10 @@ def reconstruction_loss(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
         )
     if W.shape[1] == 0:
         raise ValueError("W has no points (N = 0); at least one point is needed")
+    return _reconstruction(W, d)
+
+
+def _reconstruction(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
     return (W * d).sum(dim=-1).mean(dim=-1)
 
 
@@ -112,6 +116,10 @@ def nearest_cuboid_allocation(d: torch.Tensor) -> torch.Tensor:
     d = as_float_tensor(d, "d")
     if d.dim() != 3:
         raise ValueError(f"d must have shape (B, N, M), got {tuple(d.shape)}")
+    return _nearest_cuboid(d)
+
+
+def _nearest_cuboid(d: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.one_hot(d.detach().argmin(dim=-1), d.shape[-1]).to(d.dtype)
 
 
@@ -160,7 +168,11 @@ def compactness_loss(w: torch.Tensor, eps_sps: float = 0.01, average_over_cuboid
     w = _check_portions(w)
     if eps_sps < 0:
         raise ValueError(f"eps_sps must be non-negative, got {eps_sps}")
-    roots = torch.sqrt(w + eps_sps)
+    return _compactness(w, eps_sps, average_over_cuboids)
+
+
+def _compactness(w: torch.Tensor, eps_sps: float, average_over_cuboids: bool) -> torch.Tensor:
+    roots = torch.sqrt(w + eps_sps)  # (..., M)
     total = roots.mean(dim=-1) if average_over_cuboids else roots.sum(dim=-1)
     return total**2
 
@@ -218,12 +230,16 @@ def existence_targets(w: torch.Tensor, eps_ext: float = 0.05, min_points: float 
         (..., M) floats in {0, 1}, in w's dtype.
     """
     w = _check_portions(w)
-    if min_points is None:
-        if not 0 <= eps_ext < 1:
-            raise ValueError(f"eps_ext must lie in [0, 1), got {eps_ext}")
-        return (w.detach() > eps_ext).to(w.dtype)
-    if num_points is None or num_points < 1:
+    if min_points is None and not 0 <= eps_ext < 1:
+        raise ValueError(f"eps_ext must lie in [0, 1), got {eps_ext}")
+    if min_points is not None and (num_points is None or num_points < 1):
         raise ValueError("min_points needs num_points, the number N of points per shape")
+    return _existence_targets(w, eps_ext, min_points, num_points)
+
+
+def _existence_targets(w: torch.Tensor, eps_ext: float, min_points: float | None, num_points: int | None):
+    if min_points is None:
+        return (w.detach() > eps_ext).to(w.dtype)
     return (w.detach() * num_points > min_points).to(w.dtype)
 
 
@@ -244,7 +260,11 @@ def existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.T
             f"exist_logits and targets must both have shape (B, M); got {tuple(exist_logits.shape)} "
             f"and {tuple(targets.shape)}"
         )
-    bce = torch.nn.functional.binary_cross_entropy_with_logits(exist_logits, targets, reduction="none")
+    return _existence_loss(exist_logits, targets)
+
+
+def _existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(exist_logits, targets, reduction="none")  # (B, M)
     return bce.mean(dim=-1)
 
 
@@ -266,6 +286,10 @@ def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
     logvar = as_float_tensor(logvar, "logvar").to(mu)
     if mu.dim() != 2 or mu.shape != logvar.shape:
         raise ValueError(f"mu and logvar must both have shape (B, K); got {tuple(mu.shape)} and {tuple(logvar.shape)}")
+    return _kl_divergence(mu, logvar)
+
+
+def _kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
     return 0.5 * (logvar.exp() - (1 + logvar) + mu.square()).sum(dim=-1)
 
 
@@ -301,6 +325,10 @@ def slot_consistency_loss(centers: torch.Tensor, w: torch.Tensor) -> torch.Tenso
     if centers.dim() != 3 or centers.shape[-1] != 3 or centers.shape[:2] != w.shape:
         raise ValueError(f"centers must have shape (B, M, 3) and w (B, M); "
                          f"got {tuple(centers.shape)} and {tuple(w.shape)}")
+    return _slot_consistency(centers, w)
+
+
+def _slot_consistency(centers: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     mass = w.sum(dim=0) + 1e-6  # (M,)
     mean = (w[..., None] * centers).sum(dim=0) / mass[:, None]  # (M, 3)
     spread = (w * (centers - mean).square().sum(dim=-1)).sum(dim=0) / mass  # (M,)
@@ -403,6 +431,22 @@ class LossTerms:
         return {k: getattr(self, k).detach().item() for k in LOSS_TERMS}
 
 
+def _checked_output(output, points: torch.Tensor) -> torch.Tensor:
+    """Check the shapes total_loss relies on, once; returns W (B, N, M)."""
+    W = as_float_tensor(output.W, "W")
+    if W.dim() != 3 or W.shape[1] == 0:
+        raise ValueError(f"output.W must have shape (B, N, M) with N >= 1, got {tuple(W.shape)}")
+    B, N, M = W.shape
+    if tuple(points.shape) != (B, N, 3):
+        raise ValueError(f"points must have shape (B, N, 3) = {(B, N, 3)} to match output.W, got {tuple(points.shape)}")
+    if tuple(output.exist_logits.shape) != (B, M):
+        raise ValueError(f"output.exist_logits must have shape (B, M) = {(B, M)}, got {tuple(output.exist_logits.shape)}")
+    if output.mu.dim() != 2 or output.mu.shape != output.logvar.shape or output.mu.shape[0] != B:
+        raise ValueError(f"output.mu and output.logvar must both have shape (B, K); got {tuple(output.mu.shape)} "
+                         f"and {tuple(output.logvar.shape)}")
+    return W
+
+
 def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: LossConfig = LossConfig(),
                generator: torch.Generator | None = None) -> LossTerms:
     """L = L_recons + lambda_1 L_compact + lambda_2 L_exist + lambda_3 L_KL-div (Eq. 9), batch-averaged.
@@ -419,12 +463,12 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
         :class:`LossTerms`.
     """
     c = config
-    W = output.W
+    W = _checked_output(output, points)
     centers = allocation_weighted_centers(W, points) if c.centers_from_allocation else output.centers
     cuboids = (centers, output.quaternions, output.half_sizes)
     if c.distance == "chamfer":
         d = nearest_surface_distance(points, *cuboids)
-        W = nearest_cuboid_allocation(d)
+        W = _nearest_cuboid(d)
         samples = c.chamfer_samples or points.shape[1]
         recons = chamfer_distance_to_cuboids(points, *cuboids, n_samples=samples, generator=generator)
     else:
@@ -433,16 +477,16 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
         else:
             d = nearest_surface_distance(points, *cuboids)
         if c.allocation == "nearest_cuboid":
-            W = nearest_cuboid_allocation(d)
-        recons = reconstruction_loss(W, d)
-    w = allocation_portions(W)
-    compact = compactness_loss(w, c.eps_sps, average_over_cuboids=c.compactness_average)
-    targets = existence_targets(w, c.eps_ext, c.existence_min_points, points.shape[1])
-    exist = existence_loss(output.exist_logits, targets)
-    kl = kl_divergence(output.mu, output.logvar)
+            W = _nearest_cuboid(d)
+        recons = _reconstruction(W, d)
+    w = W.mean(dim=1)  # (B, M) portions, Sec. 3.4.2
+    compact = _compactness(w, c.eps_sps, c.compactness_average)
+    targets = _existence_targets(w, c.eps_ext, c.existence_min_points, points.shape[1])
+    exist = _existence_loss(output.exist_logits, targets)
+    kl = _kl_divergence(output.mu, output.logvar)
     recons, compact, exist, kl = recons.mean(), compact.mean(), exist.mean(), kl.mean()
     total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
-    consistency = slot_consistency_loss(centers, w)
+    consistency = _slot_consistency(centers, w)
     if c.lambda_consistency > 0:
         total = total + c.lambda_consistency * consistency
     if c.centers_from_allocation:
