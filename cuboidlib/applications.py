@@ -74,7 +74,11 @@ def existence_mask(exist_probs: torch.Tensor, threshold: float = 0.5) -> torch.T
     check_shape(probs, ("B", "M"), "exist_probs")
     if not 0 <= threshold < 1:
         raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
-    exists = probs > threshold
+    return _existence_mask(probs, threshold)
+
+
+def _existence_mask(probs: torch.Tensor, threshold: float) -> torch.Tensor:
+    exists = probs > threshold  # (B, M)
     empty = ~exists.any(dim=1)
     exists[empty, probs[empty].argmax(dim=1)] = True
     return exists
@@ -207,18 +211,24 @@ def abstract_shapes(
     """
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    if not 0 <= threshold < 1:
+        raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
     p = _as_batch(points, "points").to(next(model.parameters()))
     n = _normals_like(normals, points)
     n = None if n is None else n.to(p)
-    if p.shape[0] > batch_size:
-        parts = [abstract_shapes(model, p[s:s + batch_size], threshold, centers_from_allocation, batch_size,
-                                 None if n is None else n[s:s + batch_size])
-                 for s in range(0, p.shape[0], batch_size)]
-        return AbstractionBatch.concatenate(parts)
+    parts = [_abstract_batch(model, p[s:s + batch_size], threshold, centers_from_allocation,
+                             None if n is None else n[s:s + batch_size])
+             for s in range(0, p.shape[0], batch_size)]
+    return parts[0] if len(parts) == 1 else AbstractionBatch.concatenate(parts)
+
+
+def _abstract_batch(model, p: torch.Tensor, threshold: float, centers_from_allocation: bool,
+                    n: torch.Tensor | None) -> AbstractionBatch:
+    """:func:`abstract_shapes` of one batch of checked inputs."""
     with _evaluating(model):
         out = model(p, n, sample_latent=False)
         probs = out.exist_probs
-        exists = existence_mask(probs, threshold)
+        exists = _existence_mask(probs, threshold)
         centers = allocation_weighted_centers(out.W, p) if centers_from_allocation else out.centers
         cuboids = Cuboids(centers, out.quaternions, out.half_sizes, exists)
         labels = out.W.masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1)  # (B, N)

@@ -372,6 +372,7 @@ class Trainer:
         if config.max_steps is not None:
             self.total_steps = min(self.total_steps, config.max_steps)
         self.loss_config = config.loss_config
+        self.final_temperature = config.model_config.affinity_temperature  # read once, not at every step
 
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
@@ -452,7 +453,7 @@ class Trainer:
             The temperature; S = ``temperature_steps``, T_0 = ``temperature_start``, T the model's
             ``affinity_temperature``.
         """
-        final, config = self.config.model_config.affinity_temperature, self.config
+        final, config = self.final_temperature, self.config
         if step >= config.temperature_steps:
             return final
         return config.temperature_start * (final / config.temperature_start) ** (step / config.temperature_steps)
