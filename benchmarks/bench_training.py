@@ -8,7 +8,13 @@ small model, batch 16, 1024 points) on random shapes and reports shapes per seco
 * ``1x1``: one process, one thread;
 * ``1x2``: one process, two threads (torch's intra-op parallelism);
 * ``2x1``: two processes of one thread each, DistributedDataParallel over gloo (what
-  ``torchrun --nproc_per_node=2 -m cuboidlib train`` does), each process half of the batch.
+  ``torchrun --nproc_per_node=2 -m cuboidlib train`` does), each process half of the batch;
+* ``auto``: one process whose thread count follows the cores that other processes leave free
+  (:class:`cuboidlib.runs.CoreShare`, what ``cuboidlib train`` does by default). It warms up for at
+  least 5 s, so that the count has settled.
+
+Every layout uses the compiled kernels where they build, as a learner gets them; ``--python-code``
+measures the PyTorch code alone (``CUBOIDLIB_COMPILED_KERNELS=0``).
 
 ``--busy`` repeats each layout with one extra process that spins on a core for the whole measurement.
 Every layout runs in fresh subprocesses; the median over ``--repeats`` steps after ``--warmup`` is reported.
@@ -48,7 +54,11 @@ def worker(spec: dict) -> None:
     from cuboidlib.model import CuboidAbstractionNet
     from cuboidlib.train import TrainConfig
 
-    torch.set_num_threads(spec["threads"])
+    from cuboidlib.runs import CoreShare
+
+    share = CoreShare() if spec["threads"] == "auto" else None
+    if share is None:
+        torch.set_num_threads(spec["threads"])
     world, rank = spec["world"], spec["rank"]
     if world > 1:
         import torch.distributed as dist
@@ -69,7 +79,12 @@ def worker(spec: dict) -> None:
     points = 0.4 * normals
     loss_config = config.loss_config
     times = []
-    for i in range(spec["warmup"] + spec["repeats"]):
+    began = time.perf_counter()
+    warmup = spec["warmup"]
+    i = 0
+    while i < warmup + spec["repeats"]:
+        if share is not None and i == warmup - 1 and time.perf_counter() - began < 5.0:
+            warmup += 1  # the thread count settles within a few seconds
         if world > 1:
             dist.barrier()
         start = time.perf_counter()
@@ -80,8 +95,11 @@ def worker(spec: dict) -> None:
         optimizer.step()
         if world > 1:
             dist.barrier()
-        if i >= spec["warmup"]:
+        if share is not None:
+            share.step()
+        if i >= warmup:
             times.append(time.perf_counter() - start)
+        i += 1
     if rank == 0:
         print(json.dumps({"times": times, "batch": config.batch_size}))
     if world > 1:
@@ -89,7 +107,7 @@ def worker(spec: dict) -> None:
 
 
 def run_layout(layout: str, busy: bool, args) -> dict:
-    processes, threads = (int(x) for x in layout.split("x"))
+    processes, threads = (1, "auto") if layout == "auto" else (int(x) for x in layout.split("x"))
     port = _free_port()
     spinner = None
     if busy:
@@ -99,8 +117,9 @@ def run_layout(layout: str, busy: bool, args) -> dict:
         for rank in range(processes):
             spec = {"threads": threads, "world": processes, "rank": rank, "port": port, "config": str(args.config),
                     "warmup": args.warmup, "repeats": args.repeats}
+            env = {**os.environ, **({"CUBOIDLIB_COMPILED_KERNELS": "0"} if args.python_code else {})}
             procs.append(subprocess.Popen([sys.executable, __file__, "--worker", json.dumps(spec)],
-                                          stdout=subprocess.PIPE, text=True, cwd=ROOT))
+                                          stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env))
         outputs = [p.communicate()[0] for p in procs]
         if any(p.returncode for p in procs):
             raise RuntimeError(f"layout {layout}: a worker failed")
@@ -117,8 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=ROOT / "data_samples/checkpoints/configs/chair.json",
                         help="a course training config (model, batch size, points)")
-    parser.add_argument("--layouts", nargs="+", default=["1x1", "1x2", "2x1"],
-                        help="PROCESSESxTHREADS layouts to measure (default: 1x1 1x2 2x1)")
+    parser.add_argument("--layouts", nargs="+", default=["auto", "1x1", "1x2", "2x1"],
+                        help="PROCESSESxTHREADS layouts, or auto, to measure (default: auto 1x1 1x2 2x1)")
+    parser.add_argument("--python-code", action="store_true", help="without the compiled kernels")
     parser.add_argument("--busy", action="store_true", help="also measure each layout beside one busy process")
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=15)
@@ -127,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.worker:
         worker(json.loads(args.worker))
         return 0
-    print(f"config {args.config.name}, {os.cpu_count()} CPUs; median of {args.repeats} steps after {args.warmup}")
+    print(f"config {args.config.name}, {os.cpu_count()} CPUs, {'PyTorch code' if args.python_code else 'default kernels'};"
+          f" median of {args.repeats} steps after {args.warmup}")
     print(f"{'layout':>8} {'competing':>10} {'step (s)':>9} {'shapes/s':>9} {'vs quiet':>9}")
     quiet: dict[str, float] = {}
     for layout in args.layouts:

@@ -25,7 +25,7 @@ __version__ = "0.1.0"
 
 _PUBLIC = {
     "abstract": "abstraction",
-    "Abstraction": "abstraction",
+    "Abstraction": "results",
     "OrientationWarning": "abstraction",
     "load_point_cloud": "io",
     "PointCloud": "io",

@@ -1,8 +1,8 @@
-"""Input validation shared by every cuboidlib module.
+"""Input validation shared by every cuboidlib module, called once at a public function's entry.
 
-Each check raises ``ValueError`` (or ``TypeError`` for a non-tensor) with a message that names the
-argument, what was expected and what was received, so that bad input never turns into a silent
-wrong answer or a stack trace from deep inside torch.
+Each check raises ``ValueError`` (``TypeError`` for a non-array) with a message that names the argument,
+what was expected and what was received, so that bad input never becomes a silent wrong answer or a
+stack trace from deep inside torch.
 """
 
 from __future__ import annotations
@@ -22,10 +22,19 @@ __all__ = [
 
 
 def as_float_tensor(x, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
-    """Return ``x`` as a floating-point tensor (numpy arrays and lists are converted).
+    """``x`` as a floating-point tensor; numpy arrays and lists are converted.
 
-    Integer input is converted to the default float dtype; existing float tensors keep their dtype
-    (and gradient history) unless ``dtype`` is given.
+    Args:
+        x: a tensor or array-like of numbers. Integers become the default float dtype; float tensors keep
+            their dtype and gradient history.
+        name: the argument's name, for the message.
+        dtype, device: convert to these (None: keep).
+
+    Returns:
+        The tensor (``x`` itself when it is a float tensor and nothing is converted).
+
+    Raises:
+        TypeError: ``x`` is not array-like.
     """
     if isinstance(x, torch.Tensor):
         t = x
@@ -46,12 +55,17 @@ def _fmt_shape(spec: Sequence) -> str:
 
 
 def check_shape(t: torch.Tensor, spec: Sequence, name: str) -> dict:
-    """Check ``t.shape`` against ``spec`` and return the sizes bound to symbolic names.
+    """Check ``t.shape`` against ``spec`` and return the sizes bound to its symbols.
 
-    ``spec`` holds ints (exact sizes) and strings (symbolic sizes such as ``"B"``, ``"N"``); a
-    symbol that appears twice must have the same size both times. Example::
+    Args:
+        t: the tensor.
+        spec: ints (exact sizes) and strings (symbols such as "B", "N"; a symbol twice must match).
+        name: the argument's name, for the message.
 
-        sizes = check_shape(points, ("B", "N", 3), "points")   # -> {"B": 4, "N": 1024}
+    Returns:
+        {symbol: size}. Example::
+
+            sizes = check_shape(points, ("B", "N", 3), "points")   # -> {"B": 4, "N": 1024}
     """
     if t.dim() != len(spec):
         raise ValueError(
@@ -77,10 +91,12 @@ def check_shape(t: torch.Tensor, spec: Sequence, name: str) -> dict:
 
 
 def check_same_leading(named: dict, sizes: dict, what: str) -> None:
-    """Check that symbolic sizes found for several arguments agree.
+    """Check that the symbolic sizes of several arguments agree.
 
-    ``named`` maps argument names to the size dicts returned by :func:`check_shape`; every symbol
-    shared by two arguments must have the same value. ``sizes`` is updated in place with all symbols.
+    Args:
+        named: {argument name: the size dict :func:`check_shape` returned for it}.
+        sizes: updated in place with every symbol.
+        what: the operation's name, for the message.
     """
     for arg, s in named.items():
         for key, value in s.items():
@@ -126,3 +142,9 @@ def check_positive(t: torch.Tensor, name: str, allow_zero: bool = False) -> None
         idx = tuple(int(i) for i in torch.nonzero(bad)[0])
         rule = "non-negative" if allow_zero else "positive"
         raise ValueError(f"{name} must be {rule}; the entry at index {idx} is {float(t.detach()[idx]):.6g}")
+
+
+def check_int(value, name: str, minimum: int) -> None:
+    """An integer (not a bool) of at least ``minimum``, else ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")

@@ -1,41 +1,12 @@
-"""Applications of a trained network (Sec. 4.4): generation, interpolation, structural clustering.
+"""Applications of a trained network (Sec. 4.4): generation (Fig. 12), interpolation (Fig. 13), structural
+clustering (Fig. 14), abstraction of point clouds, and loading the committed networks by name.
 
-The network is a variational auto-encoder over cuboid structures (Sec. 3.1-3.2): ``encode`` maps a
-point cloud to the mean mu and log-variance of q(z | points), ``decode`` maps a latent code z to M
-cuboids with existence probabilities. Everything here uses those two maps in evaluation mode
-(BatchNorm with its running statistics, no gradients):
-
-* **Shape generation** (Fig. 12): :func:`generate_shapes` samples z ~ N(0, I) and decodes it.
-* **Shape interpolation** (Fig. 13): :func:`interpolate_latents` encodes two shapes, interpolates
-  their latent means linearly, z_t = (1 - t) mu_a + t mu_b, and decodes every step;
-  :func:`cuboid_step_changes` measures how far any existing cuboid moves between neighbouring
-  steps, so a lesson can show that the path is smooth (halving the step size halves the moves).
-* **Structural clustering** (Fig. 14): :func:`cluster_by_existence` puts shapes with identical
-  existence vectors in one group, :func:`existence_groups` lists each group's shared cuboid indices
-  (the paper's caption "[5,7,10,12,14]"), and :func:`purity` / :func:`adjusted_rand_index` score a
-  grouping against known structure types (those of the procedural collections, ``structure_ids``).
-* **Abstraction** of given point clouds (the network's ordinary use, for the command-line tool):
-  :func:`abstract_shapes`.
-
-Existence: a decoded cuboid exists when its existence probability exceeds ``threshold`` (0.5, as
-in the evaluation, :mod:`cuboidlib.evaluation`); a shape with no such cuboid keeps its most
-probable one (:func:`existence_mask`), so every decoded shape has at least one cuboid.
-
-Decoded cuboids are in the normalised coordinates the network was trained in (bounding box
-centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`). Generation and interpolation
-use the predicted translations. A network trained with the authors' centroid centres
-(``LossConfig(centers_from_allocation=True)``, the committed ones) never trains its translation head
-by gradient; ``cuboidlib train --release`` fits it to the centroids afterwards
-(:func:`cuboidlib.release.fit_translation_head`), and abstraction of a point cloud uses the centroids.
-
-**Trained checkpoints by name.** :func:`resolve_checkpoint` accepts a checkpoint file, a training
-run folder (its ``best.pt``) or the name of a committed checkpoint: ``chair`` means
-``data_samples/checkpoints/chair.pt`` (one file per category, written by ``cuboidlib train``).
-The folder can be moved with the environment variable ``CUBOIDLIB_CHECKPOINTS``
-(:func:`checkpoint_dir`); :func:`committed_checkpoints` lists what is there.
-
-Why one file: every application and the loading of trained networks by name share the evaluation-mode
-encode / decode of one network; they are Sec. 4.4 in one place.
+All use the network's ``encode`` / ``decode`` in evaluation mode (running BatchNorm statistics, no
+gradients), in the normalised coordinates it was trained in. A cuboid exists when its probability exceeds
+``threshold`` (0.5, as :mod:`cuboidlib.evaluation`), and every shape keeps at least its most probable one.
+Pitfall: a network trained with centroid centres (``LossConfig(centers_from_allocation=True)``, the committed
+ones) never trains its translation head by gradient; ``cuboidlib train --release`` fits it afterwards
+(:func:`cuboidlib.release.fit_translation_head`), which generation and interpolation need.
 """
 
 from __future__ import annotations
@@ -53,7 +24,7 @@ from ._checks import as_float_tensor, check_finite, check_shape
 from .checkpoint import load_model
 from .geometry import Cuboids
 from .losses import allocation_weighted_centers
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .model import CuboidAbstractionNet
 
 __all__ = [
@@ -90,15 +61,24 @@ CHECKPOINT_DIR_ENV = "CUBOIDLIB_CHECKPOINTS"
 def existence_mask(exist_probs: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
     """Existing cuboids from existence probabilities: p > threshold, at least one per shape.
 
-    exist_probs: (B, M) in [0, 1]. Returns a (B, M) bool mask; in a shape where no probability
-    exceeds ``threshold`` only its most probable cuboid is marked (the rule
-    :func:`cuboidlib.evaluation.predict_cuboids` scores networks with).
+    The rule :func:`cuboidlib.evaluation.predict_cuboids` scores networks with.
+
+    Args:
+        exist_probs: (B, M) probabilities in [0, 1].
+        threshold: in [0, 1).
+
+    Returns:
+        (B, M) bool; a shape with no probability above ``threshold`` keeps only its most probable cuboid.
     """
     probs = as_float_tensor(exist_probs, "exist_probs")
     check_shape(probs, ("B", "M"), "exist_probs")
     if not 0 <= threshold < 1:
         raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
-    exists = probs > threshold
+    return _existence_mask(probs, threshold)
+
+
+def _existence_mask(probs: torch.Tensor, threshold: float) -> torch.Tensor:
+    exists = probs > threshold  # (B, M)
     empty = ~exists.any(dim=1)
     exists[empty, probs[empty].argmax(dim=1)] = True
     return exists
@@ -119,10 +99,15 @@ def _evaluating(model: CuboidAbstractionNet) -> Iterator[None]:
 
 
 def decode_latents(model: CuboidAbstractionNet, z, threshold: float = 0.5) -> AbstractionBatch:
-    """Decode latent codes z (B, latent_dim) into cuboids with existence (Sec. 3.2).
+    """Decode latent codes into cuboids with existence (Sec. 3.2); the same z gives the same cuboids.
 
-    Returns :class:`AbstractionBatch` (labels and W are None). Deterministic: the same z gives the same
-    cuboids.
+    Args:
+        model: the network.
+        z: (B, latent_dim) latent codes.
+        threshold: existence threshold of :func:`existence_mask`.
+
+    Returns:
+        An :class:`AbstractionBatch` of B shapes (labels and W are None).
     """
     with _evaluating(model):
         pred = model.decode(z)
@@ -141,8 +126,14 @@ def generate_shapes(
 ) -> AbstractionBatch:
     """Shape generation (Sec. 4.4, Fig. 12): decode ``n_shapes`` codes z ~ N(0, I).
 
-    The codes are drawn on the CPU from ``generator`` (repeatable with a seeded generator) and
-    moved to the model's device. Returns :class:`AbstractionBatch` with B = n_shapes.
+    Args:
+        model: the network.
+        n_shapes: B, the number of shapes.
+        generator: a CPU generator the codes are drawn from (seed it to repeat a draw); None: torch's global one.
+        threshold: existence threshold of :func:`existence_mask`.
+
+    Returns:
+        An :class:`AbstractionBatch` of B shapes.
     """
     if isinstance(n_shapes, bool) or not isinstance(n_shapes, int) or n_shapes < 1:
         raise ValueError(f"n_shapes must be a positive integer, got {n_shapes!r}")
@@ -173,10 +164,15 @@ def _as_batch(points, name: str) -> torch.Tensor:
 
 
 def encode_shapes(model: CuboidAbstractionNet, points, normals=None) -> torch.Tensor:
-    """Latent means mu (B, latent_dim) of point clouds (B, N, 3) or one cloud (N, 3) (Sec. 3.1).
+    """Latent means mu of point clouds (Sec. 3.1).
 
-    The points must be normalised like the training shapes (:mod:`cuboidlib.normalization`).
-    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals`` not "none").
+    Args:
+        model: the network.
+        points: (B, N, 3) or (N, 3), normalised like the training shapes (:mod:`cuboidlib.normalization`).
+        normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals`` not "none").
+
+    Returns:
+        (B, latent_dim) mu (B = 1 for one cloud).
     """
     with _evaluating(model):
         mu, _ = model.encode(_as_batch(points, "points"), _normals_like(normals, points))
@@ -201,31 +197,41 @@ def abstract_shapes(
 ) -> AbstractionBatch:
     """Cuboid abstraction and segmentation of point clouds by the network (z = mu, Sec. 3).
 
-    points: (B, N, 3) or (N, 3), normalised like the training shapes, run ``batch_size`` shapes at a
-    time (evaluation mode: the result does not depend on the batching). ``centers_from_allocation``
-    places every cuboid at the allocation-weighted centroid of its points
-    (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained that way.
-    normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals`` not "none").
-    Returns :class:`AbstractionBatch` with labels (B, N) (argmax of W over the existing cuboids) and W.
-    The existence vectors ``cuboids.exists`` of a collection are what :func:`cluster_by_existence` groups.
+    Args:
+        model: the network.
+        points: (B, N, 3) or (N, 3), normalised like the training shapes.
+        threshold: existence threshold of :func:`existence_mask`.
+        centers_from_allocation: place every cuboid at the allocation-weighted centroid of its points
+            (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained that way.
+        batch_size: shapes per forward pass (the result does not depend on it).
+        normals: the same shape as points, for a network that reads them (``ModelConfig.input_normals`` not "none").
+
+    Returns:
+        An :class:`AbstractionBatch` with labels (B, N), the argmax of W (B, N, M) over the existing cuboids.
     """
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    if not 0 <= threshold < 1:
+        raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
     p = _as_batch(points, "points").to(next(model.parameters()))
     n = _normals_like(normals, points)
     n = None if n is None else n.to(p)
-    if p.shape[0] > batch_size:
-        parts = [abstract_shapes(model, p[s:s + batch_size], threshold, centers_from_allocation, batch_size,
-                                 None if n is None else n[s:s + batch_size])
-                 for s in range(0, p.shape[0], batch_size)]
-        return AbstractionBatch.concatenate(parts)
+    parts = [_abstract_batch(model, p[s:s + batch_size], threshold, centers_from_allocation,
+                             None if n is None else n[s:s + batch_size])
+             for s in range(0, p.shape[0], batch_size)]
+    return parts[0] if len(parts) == 1 else AbstractionBatch.concatenate(parts)
+
+
+def _abstract_batch(model, p: torch.Tensor, threshold: float, centers_from_allocation: bool,
+                    n: torch.Tensor | None) -> AbstractionBatch:
+    """:func:`abstract_shapes` of one batch of checked inputs."""
     with _evaluating(model):
         out = model(p, n, sample_latent=False)
         probs = out.exist_probs
-        exists = existence_mask(probs, threshold)
+        exists = _existence_mask(probs, threshold)
         centers = allocation_weighted_centers(out.W, p) if centers_from_allocation else out.centers
         cuboids = Cuboids(centers, out.quaternions, out.half_sizes, exists)
-        labels = out.W.masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1)
+        labels = out.W.masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1)  # (B, N)
     return AbstractionBatch(cuboids, labels, out.W, probs, out.z)
 
 
@@ -235,17 +241,17 @@ def abstract_shapes(
 
 
 def cuboid_step_changes(cuboids: Cuboids) -> tuple[torch.Tensor, torch.Tensor]:
-    """How much the cuboids change between neighbouring shapes of a sequence (K shapes, M cuboids).
+    """How much the cuboids change between neighbouring shapes of a sequence.
 
-    For neighbours k and k + 1 and every cuboid m that exists in both, the change is the largest
-    distance one of its 8 corners moves, max_c |corner_c(k + 1) - corner_c(k)|. The map between the
-    two boxes is affine in the unit-cube coordinates and the norm of the displacement is convex, so
-    this is the largest distance ANY point of the cuboid moves: it combines centre, rotation and
-    size in one number in the shape's units (a normalised shape has diagonal 1).
+    A cuboid's change is the largest distance one of its 8 corners moves: the displacement is affine over
+    the unit cube, so no point moves farther. It combines centre, rotation and size in the shape's units.
 
-    Returns ``(step_change (K - 1,), existence_changes (K - 1,) long)``: the largest change over
-    the cuboids that exist in both neighbours (0 if none does), and the number of cuboids that
-    appear or disappear between them.
+    Args:
+        cuboids: (K, M) cuboids, K >= 2 shapes in sequence.
+
+    Returns:
+        ``(step_change, existence_changes)``, (K - 1,) each: the largest change over the cuboids that exist
+        in both neighbours (0 if none does), and the number (long) of cuboids that appear or disappear.
     """
     if not isinstance(cuboids, Cuboids):
         raise TypeError(f"cuboids must be a Cuboids sequence (K shapes), got {type(cuboids).__name__}")
@@ -263,9 +269,10 @@ def cuboid_step_changes(cuboids: Cuboids) -> tuple[torch.Tensor, torch.Tensor]:
 class Interpolation:
     """A decoded interpolation path of K steps (Sec. 4.4, Fig. 13).
 
-    t: (K,) interpolation weights from 0 to 1; shapes: :class:`AbstractionBatch` (K, M) with
-    ``shapes.z[k] = (1 - t_k) z_a + t_k z_b``; step_change (K - 1,) and existence_changes (K - 1,)
-    from :func:`cuboid_step_changes`.
+    Attributes:
+        t: (K,) interpolation weights from 0 to 1.
+        shapes: K decoded shapes, ``shapes.z[k] = (1 - t_k) z_a + t_k z_b``.
+        step_change, existence_changes: (K - 1,) each, from :func:`cuboid_step_changes`.
     """
 
     t: torch.Tensor
@@ -280,8 +287,8 @@ class Interpolation:
 
     @property
     def evenness(self) -> float:
-        """Largest step change over the mean step change: 1 when every step moves the cuboids equally
-        far, large when the path jumps somewhere (inf if no cuboid moves at all)."""
+        """Largest step change over the mean: 1 when every step moves the cuboids equally far, large when the
+        path jumps somewhere (inf if no cuboid moves at all)."""
         mean = float(self.step_change.mean())
         return self.max_step_change / mean if mean > 0 else float("inf")
 
@@ -289,11 +296,19 @@ class Interpolation:
 def interpolate_codes(
     model: CuboidAbstractionNet, z_a, z_b, steps: int = 8, threshold: float = 0.5
 ) -> Interpolation:
-    """Decode the straight line between two latent codes z_a, z_b (latent_dim,) in ``steps`` steps.
+    """Decode the straight line z_k = (1 - t_k) z_a + t_k z_b, t_k = k / (steps - 1), between two codes.
 
-    z_k = (1 - t_k) z_a + t_k z_b with t_k = k / (steps - 1), so z_0 = z_a and z_{K-1} = z_b
-    exactly. Each step is decoded on its own (a batch of one), so step 0 is bitwise
-    ``decode_latents(model, z_a[None])`` and the last step bitwise the decoding of z_b.
+    Each step is decoded as a batch of one, so the first and last steps are bitwise the decodings of
+    z_a and z_b.
+
+    Args:
+        model: the network.
+        z_a, z_b: (latent_dim,) or (1, latent_dim) latent codes.
+        steps: K >= 2, the number of steps, ends included.
+        threshold: existence threshold of :func:`existence_mask`.
+
+    Returns:
+        The :class:`Interpolation` of K steps.
     """
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 2:
         raise ValueError(f"steps must be an integer >= 2, got {steps!r}")
@@ -317,13 +332,17 @@ def interpolate_latents(
     model: CuboidAbstractionNet, points_a, points_b, steps: int = 8, threshold: float = 0.5,
     normals_a=None, normals_b=None,
 ) -> Interpolation:
-    """Shape interpolation (Sec. 4.4, Fig. 13): encode two point clouds, interpolate their means.
+    """Shape interpolation (Sec. 4.4, Fig. 13): encode two point clouds, decode the line between their means.
 
-    points_a, points_b: (N, 3) each (the two may have different N), normalised. mu_a and mu_b are
-    encoded one shape at a time, then :func:`interpolate_codes` decodes the line between them: the
-    first step equals ``decode_latents(model, mu_a)`` and the last ``decode_latents(model, mu_b)``.
-    normals_a, normals_b: their normals (N, 3), for a network that reads them (``ModelConfig.input_normals``
-    not "none").
+    Args:
+        model: the network.
+        points_a, points_b: (N, 3) each (N may differ), normalised like the training shapes.
+        steps, threshold: as for :func:`interpolate_codes`.
+        normals_a, normals_b: their (N, 3) normals, for a network that reads them
+            (``ModelConfig.input_normals`` not "none").
+
+    Returns:
+        The :class:`Interpolation` from mu_a to mu_b.
     """
     mu_a = encode_shapes(model, _single(points_a, "points_a"), normals_a)
     mu_b = encode_shapes(model, _single(points_b, "points_b"), normals_b)
@@ -354,10 +373,13 @@ def _as_labels(x, name: str) -> torch.Tensor:
 def cluster_by_existence(exists) -> torch.Tensor:
     """Structural clustering (Sec. 4.4, Fig. 14): shapes with identical existence vectors form a group.
 
-    exists: (S, M) bool (or 0/1 integers), the existing cuboids of S shapes decoded by one network
-    (cuboid m means the same part in every shape). Returns (S,) long group ids: 0 is the largest
-    group, then by decreasing size; groups of equal size are numbered in the order their first
-    shape appears.
+    Args:
+        exists: (S, M) bool (or 0/1 integers), the existing cuboids of S shapes decoded by one network
+            (cuboid m is the same part in every shape).
+
+    Returns:
+        (S,) long group ids: 0 is the largest group, then by decreasing size; groups of equal size are
+        numbered in the order their first shape appears.
     """
     e = exists if isinstance(exists, torch.Tensor) else torch.as_tensor(np.asarray(exists))
     if e.dtype.is_floating_point:
@@ -368,6 +390,7 @@ def cluster_by_existence(exists) -> torch.Tensor:
         if ((e != 0) & (e != 1)).any():
             raise ValueError("exists must hold booleans or 0/1 integers")
         e = e != 0
+    # inverse (S,): the group of every shape; counts (G,): the size of every group
     _, inverse, counts = torch.unique(e.cpu().to(torch.uint8), dim=0, return_inverse=True, return_counts=True)
     s = e.shape[0]
     first = torch.full((len(counts),), s, dtype=torch.long).scatter_reduce(
@@ -380,8 +403,13 @@ def cluster_by_existence(exists) -> torch.Tensor:
 
 
 class ExistenceGroup(NamedTuple):
-    """One structural group: its id, size, the existing cuboid indices shared by all its shapes
-    (like the paper's "[5,7,10,12,14]") and the indices of its shapes."""
+    """One structural group.
+
+    Attributes:
+        cluster: its id; size: its number of shapes.
+        cuboids: the cuboid indices that exist in all its shapes (like Fig. 14's "[5,7,10,12,14]").
+        members: the indices of its shapes.
+    """
 
     cluster: int
     size: int
@@ -392,9 +420,12 @@ class ExistenceGroup(NamedTuple):
 def existence_groups(exists, clusters=None) -> list[ExistenceGroup]:
     """Summaries of the groups of :func:`cluster_by_existence`, ordered by group id.
 
-    exists: (S, M) bool; clusters: (S,) group ids (default: ``cluster_by_existence(exists)``).
-    ``cuboids`` lists the cuboids that exist in EVERY shape of the group (for existence-vector
-    groups, exactly the shared vector).
+    Args:
+        exists: (S, M) bool.
+        clusters: (S,) group ids; None: ``cluster_by_existence(exists)``.
+
+    Returns:
+        One :class:`ExistenceGroup` per group.
     """
     e = exists if isinstance(exists, torch.Tensor) else torch.as_tensor(np.asarray(exists))
     ids = cluster_by_existence(e) if clusters is None else _as_labels(clusters, "clusters")
@@ -423,11 +454,15 @@ def _contingency(a, b) -> torch.Tensor:
 
 
 def purity(clusters, truth) -> float:
-    """Purity of a grouping: the fraction of shapes whose group's most common true type is their own.
+    """Purity of a grouping, (1 / S) sum_k max_j |C_k and T_j| for groups C_k and true types T_j.
 
-    purity = (1 / S) sum_k max_j |C_k and T_j| for groups C_k and true types T_j. 1 when every group
-    holds one type only (also when every shape is its own group: read it with the ARI).
-    clusters, truth: (S,) integer labels of any values.
+    1 when every group holds one type only, also when every shape is its own group: read it with the ARI.
+
+    Args:
+        clusters, truth: (S,) integer labels of any values.
+
+    Returns:
+        The purity in (0, 1].
     """
     table = _contingency(clusters, truth)
     return float(table.amax(dim=1).sum() / table.sum())
@@ -437,14 +472,15 @@ def adjusted_rand_index(clusters, truth) -> float:
     """Adjusted Rand index (Hubert and Arabie, 1985) between a grouping and the true types.
 
     With the contingency table n_ij, row sums a_i, column sums b_j and C(x) = x (x - 1) / 2:
+    index = sum_ij C(n_ij), expected = sum_i C(a_i) sum_j C(b_j) / C(S),
+    maximum = (sum_i C(a_i) + sum_j C(b_j)) / 2, ARI = (index - expected) / (maximum - expected).
 
-        index = sum_ij C(n_ij),  expected = sum_i C(a_i) sum_j C(b_j) / C(S),
-        maximum = (sum_i C(a_i) + sum_j C(b_j)) / 2,
-        ARI = (index - expected) / (maximum - expected).
+    Args:
+        clusters, truth: (S,) integer labels of any values.
 
-    1 for identical partitions (up to renaming), about 0 for a random grouping, negative when worse
-    than chance. When maximum = expected (both partitions put all shapes in one group, or both put
-    every shape in its own group, or S = 1) the partitions are identical and 1 is returned.
+    Returns:
+        1 for identical partitions (up to renaming, also when maximum = expected), about 0 for a random
+        grouping, negative when worse than chance.
     """
     table = _contingency(clusters, truth)
     pairs = lambda x: (x * (x - 1) / 2).sum()  # noqa: E731
@@ -465,9 +501,12 @@ def adjusted_rand_index(clusters, truth) -> float:
 
 
 def checkpoint_dir() -> Path:
-    """The folder of committed checkpoints: ``$CUBOIDLIB_CHECKPOINTS`` if set, else the
-    ``data_samples/checkpoints`` folder of the source tree cuboidlib runs from, else (an installed
-    wheel) the copy shipped inside the package, ``cuboidlib/networks``."""
+    """The folder of committed checkpoints.
+
+    Returns:
+        ``$CUBOIDLIB_CHECKPOINTS`` if set, else ``data_samples/checkpoints`` of the source tree cuboidlib
+        runs from, else (an installed wheel) the copy inside the package, ``cuboidlib/networks``.
+    """
     env = os.environ.get(CHECKPOINT_DIR_ENV)
     if env:
         return Path(env)
@@ -476,7 +515,11 @@ def checkpoint_dir() -> Path:
 
 
 def committed_checkpoints() -> dict[str, Path]:
-    """Committed checkpoints by name: ``{"chair": .../chair.pt, ...}`` (empty if there are none)."""
+    """Committed checkpoints by name.
+
+    Returns:
+        ``{"chair": .../chair.pt, ...}`` for the ``.pt`` files of :func:`checkpoint_dir` (empty if none).
+    """
     folder = checkpoint_dir()
     if not folder.is_dir():
         return {}
@@ -484,15 +527,18 @@ def committed_checkpoints() -> dict[str, Path]:
 
 
 def resolve_checkpoint(name_or_path: str | os.PathLike) -> Path:
-    """The checkpoint file meant by ``name_or_path``, in this order:
+    """The checkpoint file meant by a path or a committed network's name.
 
-    1. an existing file: itself;
-    2. a training run folder: its ``best.pt``, else its ``last.pt``;
-    3. a bare name (no folder, no suffix) of a committed checkpoint, e.g. ``"chair"``:
-       ``checkpoint_dir() / "chair.pt"`` (also when a folder of that name without a run exists here,
-       such as an output folder).
+    Args:
+        name_or_path: in this order, an existing file (itself); a training run folder (its ``best.pt``,
+            else its ``last.pt``); a bare name of a committed checkpoint, e.g. ``"chair"`` for
+            ``checkpoint_dir() / "chair.pt"`` (even when a folder of that name without a run exists here).
 
-    Raises ``FileNotFoundError`` naming what was looked for and the committed names available.
+    Returns:
+        The checkpoint file.
+
+    Raises:
+        FileNotFoundError: naming what was looked for and the committed names available.
     """
     path = Path(name_or_path)
     if path.is_file():
@@ -516,10 +562,14 @@ def resolve_checkpoint(name_or_path: str | os.PathLike) -> Path:
 def load_trained_model(
     name_or_path: str | os.PathLike, device: str | torch.device = "cpu"
 ) -> tuple[CuboidAbstractionNet, dict, Path]:
-    """Load a network by checkpoint path, run folder or committed name (:func:`resolve_checkpoint`).
+    """Load a network by checkpoint path, run folder or committed name.
 
-    Returns ``(model in evaluation mode, checkpoint dict, resolved path)``; see
-    :func:`cuboidlib.checkpoint.load_model`.
+    Args:
+        name_or_path: as for :func:`resolve_checkpoint`.
+        device: where the network is built.
+
+    Returns:
+        ``(model in evaluation mode, checkpoint dict, resolved path)``, as :func:`cuboidlib.checkpoint.load_model`.
     """
     path = resolve_checkpoint(name_or_path)
     model, state = load_model(path, device=device)

@@ -1,12 +1,8 @@
-"""A non-learned baseline: cluster the points, then fit one oriented box per cluster.
+"""A non-learned baseline: k-means on position and normal, then one principal-axis box per cluster.
 
-It is what one would try first without the paper: k-means on position and normal splits a shape
-into K groups, and each group gets its principal-axis bounding box. It has no notion of structure
-shared across a category, so its cuboid indices carry no part correspondence; the course scores it
-with the same metrics as the network (:mod:`cuboidlib.metrics`) at the same number of primitives.
-
-Shapes: points and normals (N, 3) for one shape; results as :class:`cuboidlib.geometry.Cuboids`
-with a batch of one.
+What one would try first without the paper. It knows no structure shared across a category, so its
+cuboid indices carry no part correspondence; the course scores it with the network's metrics
+(:mod:`cuboidlib.metrics`) at the same number of primitives. :func:`kmeans` also starts the per-shape fit.
 """
 
 from __future__ import annotations
@@ -14,7 +10,7 @@ from __future__ import annotations
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .geometry import Cuboids, rotation_matrix_to_quaternion
 
 __all__ = ["kmeans", "oriented_bounding_box", "fit_cluster_boxes"]
@@ -24,11 +20,16 @@ def kmeans(features, k: int, iterations: int = 50,
            generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Lloyd's k-means with k-means++ seeding, for one point set or a batch of them.
 
-    features: (N, D), or (B, N, D) for B independent sets with N >= k points each. Returns (labels
-    (N,) or (B, N) long, centroids (k, D) or (B, k, D)). The seeds are drawn from ``generator`` only
-    (deterministic given it); a cluster that loses all its points keeps its previous centroid; the
-    iterations stop early once no label changes. Used by the k-means boxes below and to start the
-    per-shape fit (:func:`cuboidlib.fitting.initial_cuboids`).
+    A cluster that loses all its points keeps its centroid; the iterations stop once no label changes.
+
+    Args:
+        features: (N, D), or (B, N, D) for B independent sets; N >= k.
+        k: the number of clusters.
+        iterations: at most this many Lloyd iterations.
+        generator: the only source of randomness, the seeds (None: torch's global one).
+
+    Returns:
+        (labels, centroids): (N,) int64 and (k, D), or (B, N) and (B, k, D).
 
     Example::
 
@@ -55,7 +56,7 @@ def kmeans(features, k: int, iterations: int = 50,
         centroids.append(x[batch, pick])
         nearest = torch.minimum(nearest, (x - centroids[-1][:, None]).square().sum(-1))
     c = torch.stack(centroids, dim=1)  # (B, k, D)
-    labels = torch.cdist(x, c).argmin(dim=-1)
+    labels = torch.cdist(x, c).argmin(dim=-1)  # (B, N)
     for _ in range(iterations):
         one_hot = torch.nn.functional.one_hot(labels, k).to(x.dtype)  # (B, N, k)
         counts = one_hot.sum(dim=1)[..., None]  # (B, k, 1)
@@ -70,10 +71,15 @@ def kmeans(features, k: int, iterations: int = 50,
 def oriented_bounding_box(points, min_half_size: float = 1e-3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Principal-axis bounding box of a point set.
 
-    points: (n, 3), n >= 1. The box axes are the eigenvectors of the covariance (a right-handed
-    frame), its extent the range of the points along each axis. Returns (center (3,),
-    quaternion (4,) (w, x, y, z), half_sizes (3,)), half sizes at least ``min_half_size`` so a flat
-    or single-point cluster still gives a valid cuboid.
+    The axes are the covariance's eigenvectors (a right-handed frame; the identity below 3 points), the
+    extent the points' range along each axis.
+
+    Args:
+        points: (n, 3), n >= 1.
+        min_half_size: lower bound of the half sizes, so that a flat or one-point cluster is a valid cuboid.
+
+    Returns:
+        (center (3,), quaternion (4,) (w, x, y, z), half_sizes (3,)).
     """
     p = as_float_tensor(points, "points")
     check_shape(p, ("n", 3), "points")
@@ -97,14 +103,19 @@ def oriented_bounding_box(points, min_half_size: float = 1e-3) -> tuple[torch.Te
 
 def fit_cluster_boxes(points, normals, num_boxes: int, normal_weight: float = 0.2, iterations: int = 50,
                       seed: int = 0) -> AbstractionBatch:
-    """The k-means + oriented-box baseline for one shape.
+    """The k-means + oriented-box baseline for one shape: :func:`kmeans`, then :func:`oriented_bounding_box`.
 
-    points, normals: (N, 3). k-means runs on the features [p, normal_weight * n] (positions of a
-    unit-diagonal shape span about 1, so the default lets normals split a cluster only where
-    orientation changes sharply), then each cluster gets :func:`oriented_bounding_box`.
-    Returns an :class:`~cuboidlib.abstraction.AbstractionBatch` of one shape: M = ``num_boxes``
-    cuboid slots, of which those of non-empty clusters exist (all, unless there are fewer distinct
-    points than boxes), and ``labels`` (1, N), each point's cluster (an existing slot).
+    Args:
+        points, normals: (N, 3).
+        num_boxes: K, the clusters and cuboid slots.
+        normal_weight: k-means runs on [p, normal_weight * n]; on a shape of diagonal 1 the default lets
+            the normals split a cluster only where the orientation changes sharply.
+        iterations: at most this many k-means iterations.
+        seed: seed of k-means.
+
+    Returns:
+        An :class:`~cuboidlib.results.AbstractionBatch` of one shape: K slots, those of non-empty clusters
+        existing, and labels (1, N), each point's cluster.
     """
     p = as_float_tensor(points, "points")
     n = as_float_tensor(normals, "normals").to(p)

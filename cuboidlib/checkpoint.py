@@ -1,20 +1,17 @@
 """Checkpoints of the network: weights, configuration and training state (Sec. 3.4.5).
 
-A checkpoint is a ``torch.save`` file holding only tensors, dicts, lists, tuples, strings, numbers,
-booleans and None, so that it loads with ``torch.load(path, weights_only=True)``, which cannot run
-code hidden in a file. Its keys:
+A checkpoint is a ``torch.save`` file of tensors, dicts, lists, tuples, strings, numbers, booleans and None
+only, so it loads with ``torch.load(path, weights_only=True)``, which runs no code hidden in a file. Keys:
 
 * ``format`` (``"cuboidlib-checkpoint"``), ``format_version``, ``library_version``;
-* ``config``: the training configuration as a dict of JSON types (see :class:`cuboidlib.train.TrainConfig`),
-  whose ``"model"`` entry is the :class:`~cuboidlib.model.ModelConfig` dict;
+* ``config``: the training config as JSON types (:class:`cuboidlib.train.TrainConfig`), whose ``"model"``
+  entry is the :class:`~cuboidlib.model.ModelConfig` dict;
 * ``model``: the network's ``state_dict``;
-* training state (written by the trainer): ``optimizer``, ``step``, ``epoch``, ``rng`` (generator
-  states as uint8 tensors), ``best_val``, ``best_step``, ``world_size``.
+* training state (from the trainer): ``optimizer``, ``step``, ``epoch``, ``rng`` (generator states as uint8
+  tensors), ``best_val``, ``best_step``, ``world_size``, ``elapsed_seconds``.
 
-Files are written atomically (a temporary file in the same folder, then a rename), so an
-interrupted write never leaves a truncated checkpoint behind. Loading a model checks that the
-stored model configuration equals the requested one and refuses otherwise; weights load with
-``strict=True``.
+Files are written atomically (temporary file, then rename). Loading refuses a stored model config that
+differs from the requested one, and loads weights with ``strict=True``.
 """
 
 from __future__ import annotations
@@ -50,9 +47,17 @@ class CheckpointMismatch(ValueError):
 
 
 def config_differences(stored: dict, requested: dict, prefix: str = "") -> list[str]:
-    """Readable list of the entries where two (nested) config dicts differ, e.g. ``"model.k: 20 != 16"``.
+    """The entries where two (nested) config dicts differ, as readable lines.
 
     Lists and tuples compare equal when their items do (JSON turns tuples into lists).
+
+    Args:
+        stored: the checkpoint's config dict.
+        requested: the config asked for.
+        prefix: prepended to every key name (``"model."`` for a nested dict).
+
+    Returns:
+        One line per difference, e.g. ``"k: checkpoint has 20, requested 16"``; empty if the dicts agree.
     """
     out = []
     for key in sorted(set(stored) | set(requested)):
@@ -75,7 +80,12 @@ def _normalise(value):
 
 
 def check_config_matches(stored: dict, requested: dict, what: str) -> None:
-    """Raise :class:`CheckpointMismatch` listing every difference between ``stored`` and ``requested``."""
+    """Raise :class:`CheckpointMismatch` listing every difference between ``stored`` and ``requested``.
+
+    Args:
+        stored, requested: config dicts, as for :func:`config_differences`.
+        what: the name of the config in the message, e.g. ``"model config"``.
+    """
     diffs = config_differences(stored, requested)
     if diffs:
         raise CheckpointMismatch(
@@ -104,9 +114,12 @@ def _check_plain(value, where: str) -> None:
 
 
 def check_checkpoint_values(state: dict) -> None:
-    """Raise ``ValueError`` if a floating-point tensor or number in ``state`` is NaN or infinite.
+    """Raise ``ValueError`` if a floating-point value of ``state["model"]`` or ``state["optimizer"]`` is NaN or inf.
 
     Used before writing, so that a diverged state is never saved over a good checkpoint.
+
+    Args:
+        state: a checkpoint dict; its other entries are not looked at.
     """
 
     def visit(value, where: str) -> None:
@@ -129,12 +142,20 @@ def check_checkpoint_values(state: dict) -> None:
 
 
 def save_checkpoint(path: str | os.PathLike, config: dict, model_state: dict, **extra) -> Path:
-    """Write a checkpoint atomically and return its path.
+    """Write a checkpoint atomically.
 
-    config: the training configuration dict (JSON types, with a ``"model"`` entry); model_state:
-    the network's ``state_dict``; extra: further entries (optimizer state, step, RNG states ...).
-    Tensors are moved to the CPU. Raises ``TypeError`` for a value that ``weights_only`` loading
-    could not read, ``ValueError`` for NaN/inf weights or optimizer moments.
+    Args:
+        path: the file to write; its folder is created if missing.
+        config: the training config dict (JSON types, with a ``"model"`` entry).
+        model_state: the network's ``state_dict``; its tensors are stored on the CPU.
+        **extra: further entries (optimizer state, step, generator states, ...).
+
+    Returns:
+        ``path`` as a Path.
+
+    Raises:
+        TypeError: a value that ``torch.load(weights_only=True)`` could not read back.
+        ValueError: NaN or infinite weights or optimizer moments.
     """
     path = Path(path)
     state = {
@@ -155,7 +176,19 @@ def save_checkpoint(path: str | os.PathLike, config: dict, model_state: dict, **
 
 
 def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> dict:
-    """Read a checkpoint with ``torch.load(weights_only=True)`` and check that it is one of ours."""
+    """Read a checkpoint with ``torch.load(weights_only=True)`` and check that it is one of ours.
+
+    Args:
+        path: the checkpoint file.
+        map_location: where its tensors are loaded.
+
+    Returns:
+        The checkpoint dict (keys in the module docstring).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not a readable cuboidlib checkpoint, or one of a newer format version.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such checkpoint file")
@@ -187,9 +220,14 @@ def load_model(
 ) -> tuple[CuboidAbstractionNet, dict]:
     """Build the network stored in a checkpoint and load its weights (strict), in evaluation mode.
 
-    config: the model configuration you expect; if given, a checkpoint whose stored model config
-    differs is refused with :class:`CheckpointMismatch` naming the differences. None uses the
-    stored one. Returns ``(model, checkpoint dict)``.
+    Args:
+        path: the checkpoint file.
+        config: the model config you expect; a checkpoint whose stored one differs is refused with
+            :class:`CheckpointMismatch`. None: use the stored one.
+        device: where the network is built.
+
+    Returns:
+        ``(model, checkpoint dict)``.
     """
     state = load_checkpoint(path, map_location=device)
     stored = state["config"]["model"]

@@ -1,19 +1,27 @@
-"""The ``cuboidlib`` command-line tool.
+"""The ``cuboidlib`` command-line tool: every subcommand and option in one place.
 
-Each subcommand lives in a small ``_cmd_*`` function registered in :func:`build_parser`. Errors a
-user can fix (bad paths, bad inputs) are printed as one readable line with a non-zero exit code;
-``--traceback`` shows the full Python traceback instead.
-
-Why one file: it is the one place that lists every subcommand and option of the tool; each command is a
-thin layer over the library (:func:`cuboidlib.abstraction.abstract` for ``fit`` and ``abstract``).
+Each subcommand is a ``_add_*_command`` (its options) and a ``_cmd_*`` handler, a thin layer over the
+library. Errors a user can fix are printed as one line with a non-zero exit code (``--traceback``: the full
+traceback). The handlers import the library inside, as marked: it imports torch (seconds), which --help,
+--version and usage errors do without.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import glob
+import io
+import json
+import shlex
 import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
 
 from . import __version__
+from .files import MESH_FORMATS, write_text_atomic
 
 
 class UserError(Exception):
@@ -27,7 +35,26 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+
+def _threads(value: str):
+    """--threads: "auto" or a positive integer."""
+    if value == "auto":
+        return value
+    try:
+        number = int(value)
+    except ValueError:
+        number = 0
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of threads or auto, got {value!r}")
+    return number
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of the ``cuboidlib`` command line.
+
+    Returns:
+        The parser; each subcommand sets ``func``, its handler (args -> exit code).
+    """
     parser = _Parser(
         prog="cuboidlib",
         description="Cuboid shape abstraction via joint segmentation (Yang & Chen, SIGGRAPH 2021).",
@@ -66,7 +93,7 @@ def _add_samples_command(sub) -> None:
 
 
 def _cmd_samples(args) -> int:
-    from .io import write_data_samples
+    from .io import write_data_samples  # imports torch: start-up time
 
     if args.per_category < 1 or args.points < 1 or args.seed < 0:
         raise UserError("--per-category and --points must be positive and --seed non-negative")
@@ -115,10 +142,12 @@ def _add_train_command(sub) -> None:
     p.add_argument("--validate-every", type=int, help="validation loss (and best.pt) every this many steps")
     p.add_argument("--seed", type=int, help="seed of the weights, data order and sampling")
     p.add_argument("--device", help="auto (CUDA when available), cpu or cuda[:i]")
-    p.add_argument("--threads", type=int, dest="num_threads", help="torch.set_num_threads")
-    p.add_argument("--compiled-kernels", action="store_const", const=True,
-                   help="run the CPU hot spots with cuboidlib.kernels (same results, faster; builds them with a "
-                   "C++ compiler on first use)")
+    p.add_argument("--threads", type=_threads, dest="num_threads",
+                   help="torch threads of the training process: a number, or auto (the default: every core that "
+                   "other processes leave free, followed as the load changes)")
+    p.add_argument("--compiled-kernels", action=argparse.BooleanOptionalAction, default=None,
+                   help="the CPU hot spots in C++ (cuboidlib.kernels: the same results, faster). Default: used "
+                   "wherever a C++ compiler can build them (once per machine); --no-compiled-kernels turns them off")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="any other field, VALUE in JSON, e.g. --set loss.lambda_compact=0.2 --set model.k=16")
     p.add_argument("--print-config", action="store_true", help="print the resulting config and exit")
@@ -139,14 +168,11 @@ def _add_train_command(sub) -> None:
 
 def _train_config_from_args(args):
     """Defaults (or the resumed run's config) < --config file < flags < --set."""
-    import json
-    from pathlib import Path
-
-    from .checkpoint import load_checkpoint
-    from .losses import LossConfig
-    from .model import ModelConfig
-    from .config import read_config_file
-    from .train import TrainConfig
+    from .checkpoint import load_checkpoint  # imports torch: start-up time
+    from .config import read_config_file  # imports torch: start-up time
+    from .losses import LossConfig  # imports torch: start-up time
+    from .model import ModelConfig  # imports torch: start-up time
+    from .train import TrainConfig  # imports torch: start-up time
 
     last = Path(args.out) / "last.pt"
     data = load_checkpoint(last)["config"] if args.resume and last.is_file() else TrainConfig().to_dict()
@@ -169,6 +195,8 @@ def _train_config_from_args(args):
                                            "batch_size", "checkpoint_every", "validate_every", "seed", "device",
                                            "num_threads", "compiled_kernels")}
     merge({k: v for k, v in flags.items() if v is not None})
+    if data.get("num_threads") is None:
+        data["num_threads"] = "auto"  # the command line follows the free cores unless told otherwise
     if args.num_cuboids is not None:
         data["model"] = {**data["model"], "num_cuboids": args.num_cuboids}
     for item in args.set:
@@ -191,8 +219,9 @@ def _finetune_config_from_args(args, first):
     """The second stage's config: --finetune FILE, the data fields it leaves out taken from the first stage, then
     the data and device flags, which apply to both stages (:func:`cuboidlib.train.train_then_finetune` then checks
     that both stages select the same shapes)."""
-    from .config import read_config_file
-    from .train import DATA_FIELDS, TrainConfig
+    from .config import read_config_file  # imports torch: start-up time
+    from .dataset import DATA_FIELDS  # imports torch: start-up time
+    from .train import TrainConfig  # imports torch: start-up time
 
     file = read_config_file(args.finetune)
     inherited = {key: first.to_dict()[key] for key in DATA_FIELDS if key not in file}
@@ -203,9 +232,6 @@ def _finetune_config_from_args(args, first):
 
 def _check_writable_file(path: str, suffix: str, option: str) -> None:
     """Refuse, before any work, an output file that could not be written at the end."""
-    import tempfile
-    from pathlib import Path
-
     file = Path(path)
     if file.suffix != suffix:
         raise UserError(f"{option} {path}: the file must end in {suffix}")
@@ -218,18 +244,16 @@ def _check_writable_file(path: str, suffix: str, option: str) -> None:
 
 
 def _cmd_train(args) -> int:
-    from .train import Trainer, TrainingDiverged, _Distributed, train_then_finetune
+    from .train import Distributed, Trainer, TrainingDiverged, train_then_finetune  # imports torch: start-up time
 
     config = _train_config_from_args(args)
     finetune = _finetune_config_from_args(args, config) if args.finetune else None
     if args.release:
         _check_writable_file(args.release, ".pt", "--release")
     if args.print_config:
-        import json
-
         print(json.dumps(config.to_dict(), indent=2))
         return 0
-    processes = _Distributed()  # this process's rank and the number of processes (torchrun's variables)
+    processes = Distributed()  # this process's rank and the number of processes (torchrun's variables)
     try:
         if finetune is None:
             results = [Trainer(config, args.out, resume=args.resume, quiet=args.quiet).run()]
@@ -243,9 +267,7 @@ def _cmd_train(args) -> int:
             print(f"{result.stopped}: step {result.step} (epoch {result.epoch}); best validation loss "
                   f"{result.best_val:.5f} at step {result.best_step}; files in {result.out_dir}")
     if args.release and processes.is_main:
-        import shlex
-
-        from .release import card_path, publish_run
+        from .release import card_path, publish_run  # imports torch: start-up time (only with --release)
 
         n = processes.world_size
         launcher = ["torchrun", f"--nproc_per_node={n}", "-m", "cuboidlib"] if n > 1 else ["cuboidlib"]
@@ -294,17 +316,12 @@ def _add_evaluate_command(sub) -> None:
 
 
 def _cmd_evaluate(args) -> int:
-    import json
-    from pathlib import Path
+    from .dataset import load_shapes, load_splits  # imports torch: start-up time
+    from .evaluation import evaluate_baseline, evaluate_model, format_table  # imports torch: start-up time
+    from .metrics import ChamferConvention  # imports torch: start-up time
+    from .train import TrainConfig  # imports torch: start-up time
 
-    from .applications import load_trained_model
-    from .evaluation import evaluate_baseline, evaluate_model, format_table
-    from .metrics import ChamferConvention
-    from .config import resolve_device
-    from .dataset import load_shapes, load_splits
-    from .train import TrainConfig
-
-    model, state, _ = load_trained_model(args.checkpoint, resolve_device(args.device))
+    model, state, _ = _load_model(args.checkpoint, args.device)
     config = TrainConfig.from_dict(state["config"])
     if args.data_dir is not None:
         _check_input_folder(args.data_dir)
@@ -339,9 +356,6 @@ def _cmd_evaluate(args) -> int:
 
 # Progress bars appear only when a step takes longer than this many seconds.
 _BAR_DELAY = 0.5
-# The mesh formats of cuboidlib.export.MESH_FORMATS, known without importing torch while the arguments
-# are parsed (tests/test_cli.py checks that the two agree).
-_MESH_FORMATS = ("glb", "obj", "ply")
 
 
 class _FitDefault:
@@ -352,7 +366,7 @@ class _FitDefault:
         self.name = name
 
     def value(self):
-        from .fitting import FitConfig
+        from .fitting import FitConfig  # imports torch: start-up time (only for --help or the fit)
 
         return getattr(FitConfig(), self.name)
 
@@ -392,10 +406,10 @@ def _threshold(text: str) -> float:
 
 def _mesh_formats(text: str) -> tuple[str, ...]:
     chosen = tuple(f.strip().lower().lstrip(".") for f in text.split(","))
-    unknown = [f for f in chosen if f not in _MESH_FORMATS]
+    unknown = [f for f in chosen if f not in MESH_FORMATS]
     if unknown:
         raise argparse.ArgumentTypeError(f"unknown mesh format {unknown[0]!r}; expected a comma-separated "
-                                         f"list of {', '.join(_MESH_FORMATS)}")
+                                         f"list of {', '.join(MESH_FORMATS)}")
     return tuple(dict.fromkeys(chosen))
 
 
@@ -403,7 +417,7 @@ def _add_output_options(p, what: str) -> None:
     """--out, --mesh-format, --quiet (shared by fit, abstract, generate, interpolate)."""
     p.add_argument("--out", required=True, metavar="DIR", help=f"output folder for {what}")
     p.add_argument("--mesh-format", type=_mesh_formats, default=("glb",), metavar="FORMATS",
-                   help=f"cuboid mesh formats to write, comma-separated: any of {','.join(_MESH_FORMATS)} "
+                   help=f"cuboid mesh formats to write, comma-separated: any of {','.join(MESH_FORMATS)} "
                    "(default: glb)")
     p.add_argument("--quiet", action="store_true", help="no progress bars and no messages")
     p.add_argument("--overwrite", action="store_true",
@@ -438,7 +452,7 @@ def _add_model_options(p) -> None:
 
 def _check_out_dir(args) -> None:
     """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them)."""
-    from .export import prepare_output_folder
+    from .export import prepare_output_folder  # imports torch: start-up time
 
     try:
         prepare_output_folder(args.out, args.overwrite)
@@ -448,9 +462,7 @@ def _check_out_dir(args) -> None:
 
 def _record(args, files, complete: bool = True) -> None:
     """Write the output folder's manifest: the files this run wrote, and whether it completed."""
-    import shlex
-
-    from .export import write_manifest
+    from .export import write_manifest  # imports torch: start-up time
 
     argv = sys.argv[1:] if args.argv is None else args.argv
     write_manifest(args.out, files, "cuboidlib " + shlex.join(argv), complete)
@@ -462,16 +474,12 @@ def _bars(args) -> bool:
 
 
 def _check_input_folder(path: str) -> None:
-    from pathlib import Path
-
     if not Path(path).is_dir():
         raise UserError(f"{path}: no such data folder")
 
 
 def _check_input(path: str) -> None:
-    """Fail fast (before torch is imported) on a missing input file."""
-    from pathlib import Path
-
+    """Fail fast (before the shape is read) on a missing input file."""
     file = Path(path)
     if not file.exists():
         raise FileNotFoundError(f"{file}: no such file")
@@ -480,10 +488,8 @@ def _check_input(path: str) -> None:
 
 
 def _check_shape_file(path: str) -> None:
-    """Fail fast (before torch is imported) on a missing input or one of an unknown type."""
-    from pathlib import Path
-
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES
+    """Fail fast (before the shape is read) on a missing input or one of an unknown type."""
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES  # imports torch: start-up time
 
     _check_input(path)
     file = Path(path)
@@ -494,7 +500,7 @@ def _check_shape_file(path: str) -> None:
 
 def _load_shape(path: str, n_points: int, seed: int):
     """A mesh (sampled with n_points) or a point cloud (subsampled to at most n_points), normalised."""
-    from .io import load_point_cloud
+    from .io import load_point_cloud  # imports torch: start-up time
 
     _check_shape_file(path)
     return load_point_cloud(path, n_points, seed, fewer_ok=True)
@@ -526,10 +532,7 @@ SUMMARY_FILE = "summary.csv"
 
 def _shape_files(items: list[str]) -> list[str]:
     """The input files of SHAPE arguments: files as given, folders and glob patterns expanded (sorted)."""
-    import glob
-    from pathlib import Path
-
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES
+    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES  # imports torch: start-up time
 
     known = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
     files: list[str] = []
@@ -554,8 +557,6 @@ def _shape_files(items: list[str]) -> list[str]:
 
 def _stem_for(path: str, taken: set[str]) -> str:
     """A result name for ``path``: its file name without suffix, made unique within the run."""
-    from pathlib import Path
-
     stem, k = Path(path).stem, 1
     while stem in taken:
         k += 1
@@ -564,13 +565,15 @@ def _stem_for(path: str, taken: set[str]) -> str:
     return stem
 
 
-def _run_shapes(args, shapes: list[str], one, what: str) -> int:
-    """Abstract every shape with ``one(path, progress)``, write its files, report; with several shapes a
-    failure is reported and skipped, and SUMMARY_FILE lists every shape. Exit code 1 if any failed."""
-    import time
-    from pathlib import Path
+def _run_shapes(args, what: str, prepare) -> int:
+    """The handler of fit and abstract: expand SHAPE, check --out, then abstract every shape with
+    ``one = prepare()`` (``one(path, progress)`` -> a result), write its files and report. With several
+    shapes a failure is reported and skipped, and SUMMARY_FILE lists every shape. Exit code 1 if any failed."""
+    shapes = _shape_files(args.shape)
+    _check_out_dir(args)
+    one = prepare()
 
-    from tqdm import tqdm
+    from tqdm import tqdm  # start-up time (a quarter of a second)
 
     if len(shapes) == 1:
         start = time.perf_counter()
@@ -642,12 +645,6 @@ def _report(args, result, written: list, seconds: float) -> None:
 
 def _write_summary(folder, rows: list[dict]):
     """SUMMARY_FILE in ``folder``: one row per shape (status, cuboids used, Chamfer distance, seconds, error)."""
-    import csv
-    import io
-    from pathlib import Path
-
-    from ._files import write_text_atomic
-
     columns = ["shape", "status", "result", "cuboids_used", "cuboids", "chamfer", "seconds", "error"]
     text = io.StringIO(newline="")
     writer = csv.DictWriter(text, columns)
@@ -682,22 +679,22 @@ def _add_fit_command(sub) -> None:
 
 
 def _cmd_fit(args) -> int:
-    shapes = _shape_files(args.shape)
-    _check_out_dir(args)
+    def prepare():
+        from .abstraction import abstract  # imports torch: start-up time
+        from .fitting import FitConfig  # imports torch: start-up time
 
-    from .abstraction import abstract
-    from .fitting import FitConfig
+        for name in ("cuboids", "steps", "restarts"):
+            if isinstance(getattr(args, name), _FitDefault):
+                setattr(args, name, getattr(args, name).value())
+        config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
 
-    for name in ("cuboids", "steps", "restarts"):
-        if isinstance(getattr(args, name), _FitDefault):
-            setattr(args, name, getattr(args, name).value())
-    config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
+        def one(path: str, progress: bool):
+            return abstract(path, None, n_points=args.points, seed=args.seed, fit_config=config,
+                            part_names=args.part_names, progress=progress, up=args.up, front=args.front)
 
-    def one(path: str, progress: bool):
-        return abstract(path, None, n_points=args.points, seed=args.seed, fit_config=config,
-                        part_names=args.part_names, progress=progress, up=args.up, front=args.front)
+        return one
 
-    return _run_shapes(args, shapes, one, "fitting")
+    return _run_shapes(args, "fitting", prepare)
 
 
 def _add_abstract_command(sub) -> None:
@@ -725,21 +722,19 @@ def _add_abstract_command(sub) -> None:
 
 
 def _cmd_abstract(args) -> int:
-    shapes = _shape_files(args.shape)
-    _check_out_dir(args)
+    def prepare():
+        from .abstraction import OrientationWarning, abstract  # imports torch: start-up time
 
-    import warnings
+        warnings.simplefilter("ignore", OrientationWarning)  # _report prints it, without a source line
 
-    from .abstraction import OrientationWarning, abstract
+        def one(path: str, progress: bool):
+            return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
+                            centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
+                            front=args.front, refine=args.refine, progress=progress)
 
-    warnings.simplefilter("ignore", OrientationWarning)  # _report prints it, without a source line
+        return one
 
-    def one(path: str, progress: bool):
-        return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
-                        centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
-                        front=args.front, refine=args.refine, progress=progress)
-
-    return _run_shapes(args, shapes, one, "running the network")
+    return _run_shapes(args, "running the network", prepare)
 
 
 def _stems(prefix: str, count: int) -> list[str]:
@@ -747,11 +742,20 @@ def _stems(prefix: str, count: int) -> list[str]:
     return [f"{prefix}_{i:0{width}d}" for i in range(count)]
 
 
-def _write_decoded(args, decoded, stems: list[str], methods: list[dict]) -> list:
-    """Write every decoded shape (normalised frame, no points) as JSON and meshes; returns the paths."""
-    from tqdm import tqdm
+def _load_model(checkpoint: str, device: str):
+    """(model, checkpoint state, path) of a checkpoint file, run folder or committed name, on ``device``."""
+    from .applications import load_trained_model  # imports torch: start-up time
+    from .config import resolve_device  # imports torch: start-up time
 
-    from .abstraction import Abstraction
+    return load_trained_model(checkpoint, resolve_device(device))
+
+
+def _write_decoded(args, decoded, stems: list[str], methods: list[dict], start: float, summary) -> int:
+    """The end of generate and interpolate: write every decoded shape (normalised frame, no points) as JSON
+    and meshes, then print ``summary()``, the seconds since ``start`` and the files written. Exit code 0."""
+    from tqdm import tqdm  # start-up time (a quarter of a second)
+
+    from .abstraction import Abstraction  # imports torch: start-up time
 
     cuboids = decoded.cuboids.to(device="cpu")
     written = []
@@ -761,7 +765,10 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict]) -> list
         result = Abstraction(one, method=methods[k])
         written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
         _record(args, written, complete=k == len(stems) - 1)  # an interrupted run says so, with what it wrote
-    return written
+    if not args.quiet:
+        print(f"{summary()} | {time.perf_counter() - start:.1f} s")
+        print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
+    return 0
 
 
 def _add_generate_command(sub) -> None:
@@ -780,26 +787,23 @@ def _add_generate_command(sub) -> None:
 
 
 def _cmd_generate(args) -> int:
-    import time
+    import torch  # start-up time
 
-    import torch
-
-    from .applications import generate_shapes, load_trained_model
-    from .config import resolve_device
+    from .applications import generate_shapes  # imports torch: start-up time
 
     start = time.perf_counter()
     _check_out_dir(args)
-    model, state, path = load_trained_model(args.model, resolve_device(args.device))
+    model, _, path = _load_model(args.model, args.device)
     decoded = generate_shapes(model, args.count, torch.Generator().manual_seed(args.seed), args.threshold)
     methods = [{"name": "generate", "checkpoint": str(path), "seed": args.seed, "sample": k,
                 "threshold": args.threshold} for k in range(args.count)]
-    written = _write_decoded(args, decoded, _stems("generated", args.count), methods)
-    if not args.quiet:
+
+    def summary() -> str:
         used = decoded.num_existing().tolist()
-        print(f"{args.count} shapes generated | cuboids used: {' '.join(map(str, used))} of "
-              f"{decoded.cuboids.num_cuboids} | {time.perf_counter() - start:.1f} s")
-        print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
-    return 0
+        return (f"{args.count} shapes generated | cuboids used: {' '.join(map(str, used))} of "
+                f"{decoded.cuboids.num_cuboids}")
+
+    return _write_decoded(args, decoded, _stems("generated", args.count), methods, start, summary)
 
 
 def _add_interpolate_command(sub) -> None:
@@ -823,11 +827,7 @@ def _add_interpolate_command(sub) -> None:
 
 
 def _cmd_interpolate(args) -> int:
-    import time
-    from pathlib import Path
-
-    from .applications import interpolate_latents, load_trained_model
-    from .config import resolve_device
+    from .applications import interpolate_latents  # imports torch: start-up time
 
     start = time.perf_counter()
     if args.steps < 2:
@@ -835,7 +835,7 @@ def _cmd_interpolate(args) -> int:
     _check_out_dir(args)
     _check_input(args.shape_a)
     _check_input(args.shape_b)
-    model, state, path = load_trained_model(args.model, resolve_device(args.device))
+    model, state, path = _load_model(args.model, args.device)
     n_points = args.points or _model_points(state)
     clouds = [_load_shape(shape, n_points, args.seed) for shape in (args.shape_a, args.shape_b)]
     for shape, pc in zip((args.shape_a, args.shape_b), clouds):
@@ -846,14 +846,13 @@ def _cmd_interpolate(args) -> int:
     names = (Path(args.shape_a).name, Path(args.shape_b).name)
     methods = [{"name": "interpolate", "checkpoint": str(path), "from": names[0], "to": names[1], "t": float(t),
                 "threshold": args.threshold} for t in interp.t]
-    written = _write_decoded(args, interp.shapes, _stems("step", args.steps), methods)
-    if not args.quiet:
-        print(f"{args.steps} steps from {names[0]} to {names[1]} | largest move of an existing cuboid between "
-              f"neighbouring steps {interp.max_step_change:.4g} ({interp.evenness:.2f} x the mean step; shape "
-              f"diagonal 1) | {int(interp.existence_changes.sum())} cuboid(s) appear or disappear | "
-              f"{time.perf_counter() - start:.1f} s")
-        print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
-    return 0
+
+    def summary() -> str:
+        return (f"{args.steps} steps from {names[0]} to {names[1]} | largest move of an existing cuboid between "
+                f"neighbouring steps {interp.max_step_change:.4g} ({interp.evenness:.2f} x the mean step; shape "
+                f"diagonal 1) | {int(interp.existence_changes.sum())} cuboid(s) appear or disappear")
+
+    return _write_decoded(args, interp.shapes, _stems("step", args.steps), methods, start, summary)
 
 
 def _add_view_command(sub) -> None:
@@ -873,11 +872,7 @@ def _add_view_command(sub) -> None:
 
 
 def _cmd_view(args) -> int:
-    from .export import write_view_html
-
-    from pathlib import Path
-
-    from .export import read_manifest
+    from .export import read_manifest, write_view_html  # imports torch: start-up time
 
     manifest = read_manifest(args.result) if Path(args.result).is_dir() else None
     if manifest is not None and not manifest.get("complete", True) and not args.quiet:
@@ -890,7 +885,6 @@ def _cmd_view(args) -> int:
     return 0
 
 
-
 def _missing_package(exc: ImportError) -> int:
     print(f"cuboidlib: error: the package {exc.name or exc} is not installed; install cuboidlib with its "
           "dependencies (README: python -m pip install -e .)", file=sys.stderr)
@@ -898,6 +892,15 @@ def _missing_package(exc: ImportError) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``cuboidlib`` command line.
+
+    Args:
+        argv: the arguments after ``cuboidlib`` (default: ``sys.argv[1:]``).
+
+    Returns:
+        The exit code: 0 success, 1 a shape of several failed or an unexpected error or a missing package,
+        2 a user's error (one line on stderr), 3 training diverged, 130 interrupted.
+    """
     parser = build_parser()
     try:  # --help looks up library defaults, which import the dependencies
         args = parser.parse_args(argv)

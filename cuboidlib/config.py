@@ -1,10 +1,8 @@
-"""Plumbing shared by every configuration: the dict / JSON round trip, config files, seeds, devices.
+"""Plumbing shared by every configuration: the dict / JSON round trip, config files, seeds, devices, threads.
 
 :class:`ConfigDict` gives the configuration dataclasses (:class:`~cuboidlib.model.ModelConfig`,
 :class:`~cuboidlib.losses.LossConfig`, :class:`~cuboidlib.train.TrainConfig`) one ``to_dict`` /
-``from_dict`` with one wording of its errors. :func:`read_config_file` reads a JSON config file,
-:func:`derive_seed` makes independent random streams from one seed, and :func:`resolve_device`
-turns "auto" / "cpu" / "cuda[:i]" into a ``torch.device``.
+``from_dict`` with one wording of its errors.
 
 Example::
 
@@ -18,12 +16,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
 
-__all__ = ["ConfigDict", "read_config_file", "derive_seed", "resolve_device"]
+__all__ = ["ConfigDict", "read_config_file", "derive_seed", "resolve_device", "torch_threads"]
 
 
 def _json_types(value):
@@ -55,7 +54,18 @@ class ConfigDict:
 
 
 def read_config_file(path: str | os.PathLike) -> dict:
-    """The JSON object of a config file as it is (a partial config dict; checked when used)."""
+    """The JSON object of a config file as it is: a partial config dict, checked where it is used.
+
+    Args:
+        path: the file.
+
+    Returns:
+        The dict.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not UTF-8 text, not JSON, or not a JSON object.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such config file")
@@ -71,12 +81,29 @@ def read_config_file(path: str | os.PathLike) -> dict:
 
 
 def derive_seed(*keys: int) -> int:
-    """A 63-bit seed from a tuple of non-negative integers (independent streams for different keys)."""
+    """A 63-bit seed from non-negative integers; different keys give independent random streams.
+
+    Args:
+        *keys: non-negative integers.
+
+    Returns:
+        An int in [0, 2^63).
+    """
     return int(np.random.SeedSequence([int(k) for k in keys]).generate_state(2, np.uint64)[0] >> np.uint64(1))
 
 
 def resolve_device(name: str) -> torch.device:
-    """"auto" -> CUDA when available, else CPU; otherwise ``torch.device(name)`` (CUDA must exist)."""
+    """The ``torch.device`` of a device name.
+
+    Args:
+        name: "auto" (CUDA when available, else the CPU), "cpu" or "cuda[:i]".
+
+    Returns:
+        The device.
+
+    Raises:
+        ValueError: another name, or CUDA asked for where there is none.
+    """
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
@@ -88,3 +115,23 @@ def resolve_device(name: str) -> torch.device:
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device {name!r} was requested but CUDA is not available; use 'cpu' or 'auto'")
     return device
+
+
+@contextmanager
+def torch_threads(count: int | None):
+    """Run the block with ``count`` torch threads, then restore the count (a context manager).
+
+    One shape is fitted or abstracted fastest with one thread; a second thread only waits when another
+    process holds the other core (``python benchmarks/bench_abstract.py`` measures both).
+
+    Args:
+        count: the number of threads, or None to leave it as it is.
+    """
+    before = torch.get_num_threads()
+    if count is not None and count != before:
+        torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)

@@ -1,28 +1,10 @@
-"""The data: a torch ``Dataset`` over procedural collections or files, in-memory shape sets, splits.
+"""The data: a torch ``Dataset`` over procedural collections or files, in-memory shape sets, splits, noise.
 
-:class:`PointCloudDataset` reads one shape at a time; :class:`ShapeSet` holds many as stacked
-tensors (what training and evaluation use), :func:`split_indices` assigns shapes to train /
-validation / test by a seeded permutation, and :func:`load_splits` does both for a
-:class:`~cuboidlib.train.TrainConfig` (a procedural collection or a folder of files).
-:func:`add_noise` / :func:`noisy_splits` jitter the points as the paper's noise experiment does
-(Table 4).
-
-The ``Dataset``:
-
-Each item is a dict of tensors: ``"points"`` (N, 3) float32, ``"normals"`` (N, 3) float32,
-``"labels"`` (N,) int64 when the part labels are known, ``"index"`` (the shape's index in the
-source, int64) and, for procedural collections, ``"structure_id"`` (int64). A ``DataLoader``
-stacks them into the batch-first (B, N, 3) tensors the model expects.
-
-* **Subsampling**: with ``n_points`` each item is a random subset of that size, drawn from a
-  generator seeded by ``(seed, epoch, item)``, so it is repeatable whatever the worker order;
-  :meth:`PointCloudDataset.set_epoch` draws new subsets for a new epoch.
-* **Rotation augmentation** (Sec. 4.1: the animal set is augmented by rotations of +-5 and +-10
-  degrees about the up axis): with ``augment=True`` every shape appears once per angle of
-  ``rotations_deg`` (default ``(-10, -5, 0, 5, 10)``), rotated about the vertical +y axis (points
-  and normals alike), so the dataset is ``len(rotations_deg)`` times longer, as in the paper.
-* **Files** are read lazily with :func:`cuboidlib.io.load_point_cloud` (normalised with the course
-  convention, normals estimated when missing) and kept in memory after the first read.
+:class:`PointCloudDataset` reads one shape at a time; :class:`ShapeSet` holds many as stacked tensors
+(what training and evaluation use); :func:`split_indices` assigns shapes to train / validation / test by
+a seeded permutation, and :func:`load_splits` does both for a :class:`DataConfig` (a procedural
+collection or a folder of files); :func:`add_noise` and :func:`noisy_splits` jitter the points as the
+paper's noise experiment does (Table 4).
 """
 
 from __future__ import annotations
@@ -30,14 +12,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
 
-from .config import derive_seed
+from ._checks import check_int
+from .config import ConfigDict, derive_seed
 from .io import (
     MESH_SUFFIXES,
     POINT_CLOUD_SUFFIXES,
@@ -48,12 +31,10 @@ from .io import (
     shapenet_part_files,
     shapenet_part_labels,
 )
-from .shapes import PART_NAMES, ShapeCollection
-
-if TYPE_CHECKING:
-    from .train import TrainConfig
+from .shapes import CATEGORIES, PART_NAMES, ShapeCollection, make_collection
 
 __all__ = [
+    "DataConfig", "DATA_FIELDS",
     "PAPER_ROTATIONS_DEG", "PointCloudDataset", "rotate_about_y", "ShapeSet", "split_indices", "load_shapes",
     "load_splits",
     "data_layout",
@@ -61,12 +42,69 @@ __all__ = [
     "noisy_splits",
 ]
 
+@dataclass
+class DataConfig(ConfigDict):
+    """Which shapes a run reads and how they are split. :class:`~cuboidlib.train.TrainConfig` extends it.
+
+    Args:
+        category: procedural category ("chair", "table", "airplane", "animal"); with ``data_dir``, the
+            category of a ShapeNet-part or authors' folder, else only a name in logs.
+        n_shapes: shapes in the procedural collection (ignored with ``data_dir``).
+        n_points: points per shape (paper: 4096); for files a random subset of this size (meshes are
+            sampled with this many points).
+        data_seed: seed of the collection, or of the subsets drawn from files.
+        data_dir: a folder of point-cloud / mesh files to use instead of a procedural collection.
+        split_fractions: (train, validation, test) fractions of the shapes, summing to 1.
+        split_seed: seed of the permutation that assigns shapes to the splits.
+    """
+
+    category: str = "chair"
+    n_shapes: int = 512
+    n_points: int = 4096
+    data_seed: int = 0
+    data_dir: str | None = None
+    split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
+    split_seed: int = 0
+
+    def __post_init__(self) -> None:
+        name = type(self).__name__
+        if self.data_dir is None and self.category not in CATEGORIES:
+            raise ValueError(f"{name}.category must be one of {CATEGORIES}, got {self.category!r}")
+        for key in ("n_shapes", "n_points"):
+            check_int(getattr(self, key), f"{name}.{key}", minimum=1)
+        for key in ("data_seed", "split_seed"):
+            check_int(getattr(self, key), f"{name}.{key}", minimum=0)
+        fractions = self.split_fractions
+        if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
+            raise ValueError(f"{name}.split_fractions must be (train, validation, test), got {fractions!r}")
+        self.split_fractions = tuple(float(f) for f in fractions)
+        train, val, test = self.split_fractions
+        if train <= 0 or val <= 0 or test < 0 or abs(train + val + test - 1) > 1e-6:
+            raise ValueError(
+                f"{name}.split_fractions must be (train > 0, validation > 0, test >= 0) summing to 1, "
+                f"got {fractions!r}"
+            )
+        if self.data_dir is not None:
+            self.data_dir = str(self.data_dir)
+
+
+#: The fields of :class:`DataConfig`: two runs with equal values read the same shapes.
+DATA_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(DataConfig))
+
 #: The paper's augmentation angles for the animal set (degrees about the up axis), Sec. 4.1.
 PAPER_ROTATIONS_DEG: tuple[float, ...] = (-10.0, -5.0, 0.0, 5.0, 10.0)
 
 
 def rotate_about_y(x: torch.Tensor, angle_deg: float) -> torch.Tensor:
-    """Rotate vectors ``x`` (..., 3) by ``angle_deg`` degrees about +y (right-handed: +z towards +x)."""
+    """Rotate vectors about +y by ``angle_deg`` degrees (right-handed: +z turns towards +x).
+
+    Args:
+        x: (..., 3) points or normals.
+        angle_deg: the angle in degrees.
+
+    Returns:
+        (..., 3) the rotated vectors.
+    """
     a = math.radians(angle_deg)
     c, s = math.cos(a), math.sin(a)
     R = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=x.dtype, device=x.device)
@@ -74,7 +112,12 @@ def rotate_about_y(x: torch.Tensor, angle_deg: float) -> torch.Tensor:
 
 
 class PointCloudDataset(torch.utils.data.Dataset):
-    """Shapes from a :class:`~cuboidlib.shapes.ShapeCollection`, or from files, as tensors.
+    """Shapes from a :class:`~cuboidlib.shapes.ShapeCollection` or from files, one item per shape and angle.
+
+    An item is a dict: "points" and "normals" (N, 3) float32, "labels" (N,) int64 when known, "index"
+    (the shape's index in the source) and, for a collection, "structure_id", both int64 scalars. Subsets
+    come from a generator seeded by (seed, epoch, item), repeatable whatever the worker order. Files are
+    read lazily with :func:`cuboidlib.io.load_point_cloud` and kept in memory.
 
     Args:
         source: a ShapeCollection, or a sequence of file paths (anything
@@ -82,8 +125,9 @@ class PointCloudDataset(torch.utils.data.Dataset):
         n_points: points per item (a random subset); None keeps every point (files must then all
             have the same size to be batched). For meshes, the number of points sampled on them
             (required).
-        augment: repeat every shape once per angle in ``rotations_deg`` (rotation about +y).
-        rotations_deg: the augmentation angles in degrees.
+        augment: repeat every shape once per angle of ``rotations_deg``, points and normals rotated about
+            +y (Sec. 4.1: the animal set); the dataset gets len(rotations_deg) times longer.
+        rotations_deg: the augmentation angles in degrees (default: the paper's, -10 to 10).
         seed: seed of the subsets (and of mesh sampling).
         label_map: optional function applied to the labels read from files (e.g. ShapeNet-part ids to
             course part indices).
@@ -135,8 +179,12 @@ class PointCloudDataset(torch.utils.data.Dataset):
 
     @classmethod
     def from_shapenet_part(cls, root: str | os.PathLike, category: str, split: str = "train", **kwargs):
-        """Dataset over a ShapeNet-part "normal" folder (see :func:`cuboidlib.io.shapenet_part_files`),
-        labels mapped to the course part names (table support -> leg)."""
+        """Dataset over a ShapeNet-part "normal" folder, labels mapped to the course's parts (table support -> leg).
+
+        Args:
+            root, category, split: as in :func:`cuboidlib.io.shapenet_part_files`.
+            **kwargs: the other arguments of :class:`PointCloudDataset`.
+        """
         files = shapenet_part_files(root, category, split)
         if not files:
             raise ValueError(f"{root}: the {split} split lists no {category!r} shapes")
@@ -144,7 +192,12 @@ class PointCloudDataset(torch.utils.data.Dataset):
 
     @classmethod
     def from_authors_layout(cls, root: str | os.PathLike, category: str, split: str = "train", **kwargs):
-        """Dataset over the authors' layout (see :func:`cuboidlib.io.authors_layout_files`)."""
+        """Dataset over the authors' data layout.
+
+        Args:
+            root, category, split: as in :func:`cuboidlib.io.authors_layout_files`.
+            **kwargs: the other arguments of :class:`PointCloudDataset`.
+        """
         files = authors_layout_files(root, category, split)
         if not files:
             raise ValueError(f"{root}: the {category} {split} list is empty")
@@ -216,10 +269,14 @@ class PointCloudDataset(torch.utils.data.Dataset):
 
 @dataclass
 class ShapeSet:
-    """Shapes held in memory: points, normals (S, N, 3) float32, labels (S, N) int64 or None.
+    """Shapes held in memory as stacked tensors.
 
-    indices (S,): each shape's index in its source (collection or sorted file list); part_names:
-    the names of the part labels (None when unknown); num_parts: the number of part labels.
+    Attributes:
+        points, normals: (S, N, 3) float32.
+        labels: (S, N) int64 part labels, or None.
+        indices: (S,) each shape's index in its source (collection or sorted file list).
+        part_names: the names of the part labels, or None when unknown.
+        num_parts: the number of part labels, or None.
     """
 
     points: torch.Tensor
@@ -240,6 +297,7 @@ class ShapeSet:
         )
 
     def to(self, device: torch.device | str) -> "ShapeSet":
+        """The shapes on ``device`` (``indices`` stay where they are)."""
         return ShapeSet(
             self.points.to(device), self.normals.to(device), None if self.labels is None else self.labels.to(device),
             self.indices, self.part_names, self.num_parts,
@@ -247,11 +305,16 @@ class ShapeSet:
 
 
 def split_indices(n: int, fractions: tuple[float, float, float], seed: int) -> dict[str, torch.Tensor]:
-    """Assign ``n`` shapes to "train", "val" and "test" by a permutation seeded with ``seed``.
+    """Assign ``n`` shapes to "train", "val" and "test" by a seeded permutation.
 
-    Sizes: validation round(n * f_val) (at least 1), test round(n * f_test) (at least 1 if
-    f_test > 0), train the rest (at least 1). Returns sorted int64 index tensors; the same
-    (n, fractions, seed) always gives the same split.
+    Args:
+        n: the number of shapes.
+        fractions: (train, validation, test): validation gets round(n f_val) shapes (at least 1), test
+            round(n f_test) (at least 1 when f_test > 0), train the rest (at least 1).
+        seed: the permutation's seed; the same arguments always give the same split.
+
+    Returns:
+        {"train", "val", "test": sorted int64 index tensors}.
     """
     _, f_val, f_test = fractions
     n_val = max(1, round(n * f_val))
@@ -277,9 +340,16 @@ def _data_files(folder: Path) -> list[Path]:
 
 
 def data_layout(folder: str | os.PathLike, category: str) -> str:
-    """Which layout a data folder has: "shapenet-part" (``synsetoffset2category.txt`` at its root),
-    "authors" (``<category>_train.npy`` or ``.txt`` at its root) or "files" (any other folder: every
-    mesh and point cloud file below it)."""
+    """The layout of a data folder.
+
+    Args:
+        folder: the folder.
+        category: the category whose file lists the authors' layout would hold.
+
+    Returns:
+        "shapenet-part" (``synsetoffset2category.txt`` at its root), "authors" (``<category>_train`` or
+        ``_test`` ``.npy`` / ``.txt`` at its root) or "files" (every mesh and point cloud file below it).
+    """
     folder = Path(folder)
     if (folder / "synsetoffset2category.txt").is_file():
         return "shapenet-part"
@@ -317,14 +387,18 @@ def _folder_dataset(folder: Path, category: str, n_points: int, seed: int) -> tu
     return PointCloudDataset(_data_files(folder), n_points=n_points, seed=seed), None
 
 
-def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
-    """All shapes of the configured data source as one :class:`ShapeSet` (before splitting).
+def load_shapes(config: DataConfig, progress: bool = False) -> ShapeSet:
+    """All shapes of the configured source as one :class:`ShapeSet`, before splitting.
 
-    The source is the procedural collection of ``config.category``, or the folder ``config.data_dir``:
-    a ShapeNet-part root, the authors' data layout or any folder of mesh / point cloud files
-    (:func:`data_layout`; for the first two, ``config.category`` picks the category).
+    Args:
+        config: the procedural collection of ``config.category``, or the folder ``config.data_dir``: a
+            ShapeNet-part root, the authors' layout or any folder of mesh / point cloud files
+            (:func:`data_layout`; for the first two ``config.category`` picks the category).
+        progress: show the progress of making a procedural collection.
+
+    Returns:
+        The :class:`ShapeSet`, points (S, N, 3).
     """
-    from .shapes import make_collection
 
     if config.data_dir is None:
         collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
@@ -357,8 +431,15 @@ def load_shapes(config: "TrainConfig", progress: bool = False) -> ShapeSet:
     )
 
 
-def load_splits(config: "TrainConfig", progress: bool = False) -> dict[str, ShapeSet]:
-    """The "train", "val" and "test" :class:`ShapeSet` of a configuration (see :func:`split_indices`)."""
+def load_splits(config: DataConfig, progress: bool = False) -> dict[str, ShapeSet]:
+    """The "train", "val" and "test" shapes of a configuration: :func:`load_shapes`, then :func:`split_indices`.
+
+    Args:
+        config, progress: as in :func:`load_shapes`.
+
+    Returns:
+        {"train", "val", "test": :class:`ShapeSet`}.
+    """
     shapes = load_shapes(config, progress)
     return {name: shapes.subset(idx) for name, idx in split_indices(len(shapes), config.split_fractions,
                                                                     config.split_seed).items()}
@@ -370,13 +451,18 @@ def load_splits(config: "TrainConfig", progress: bool = False) -> dict[str, Shap
 
 
 def add_noise(points: torch.Tensor, sigma_n: float, seed: int) -> torch.Tensor:
-    """Input noise of Table 4: ``points + sigma_n * e`` with e ~ N(0, I_3) drawn independently per point.
+    """Input noise of Table 4: ``points + sigma_n * e``, e ~ N(0, I_3) drawn independently per point.
 
-    The jitter is isotropic: a uniformly random direction with a chi(3)-distributed length, each
-    coordinate with standard deviation ``sigma_n`` (variance sigma_n^2, as in the paper). It comes
-    from a generator seeded with ``seed`` (the same seed gives the same jitter; for a fixed seed the
-    noise levels differ only by the factor sigma_n). points: (..., 3) float; returns a new tensor of
-    the same shape. The normals are not touched: they stay those of the clean surface.
+    Each coordinate gets standard deviation sigma_n (variance sigma_n^2, as in the paper); for a fixed seed
+    the noise levels differ only by the factor sigma_n. The normals stay those of the clean surface.
+
+    Args:
+        points: (..., 3) float tensor.
+        sigma_n: the standard deviation, finite and >= 0.
+        seed: seed of e; the same seed gives the same jitter.
+
+    Returns:
+        (..., 3) a new tensor.
     """
     if not isinstance(points, torch.Tensor) or not points.is_floating_point() or points.shape[-1:] != (3,):
         raise ValueError(f"points must be a float tensor of shape (..., 3), got {getattr(points, 'shape', points)!r}")
@@ -394,7 +480,17 @@ def _noise_seed(data_seed: int, split: str) -> int:
 
 
 def noisy_splits(splits: dict[str, ShapeSet], sigma_n: float, data_seed: int) -> dict[str, ShapeSet]:
-    """Every split with :func:`add_noise` on its points (one seed per split, derived from ``data_seed``);
-    normals, labels and indices unchanged. The noise is drawn once: every epoch sees the same noisy clouds."""
+    """Every split with :func:`add_noise` on its points; normals, labels and indices unchanged.
+
+    The noise is drawn once, so every epoch sees the same noisy clouds.
+
+    Args:
+        splits: {name: ShapeSet}, names among "train", "val" and "test".
+        sigma_n: as in :func:`add_noise`.
+        data_seed: the seed each split's noise seed is derived from.
+
+    Returns:
+        {name: ShapeSet} with noisy points.
+    """
     return {name: dataclasses.replace(s, points=add_noise(s.points, sigma_n, _noise_seed(data_seed, name)))
             for name, s in splits.items()}

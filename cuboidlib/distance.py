@@ -1,17 +1,10 @@
-"""Point-to-cuboid distances: the paper's normal-aware sampled distance and its baselines.
+"""Point-to-cuboid distances: the paper's normal-aware sampled distance, Eq. (5), and its baselines.
 
-- :func:`point_to_cuboid_distance` is d(p_n, C_m) of Eq. (5), Sec. 3.4.1 (and the paper's figure that
-  illustrates it): the face whose normal is most similar to the point's normal, a point sampled
-  along the normal, its closest point on that face, and the squared distance to the original point.
-- :func:`nearest_surface_distance` is the "project to the closest cuboid surface" baseline that
-  ignores normals (Sec. 4.3, the "Distance" column of the point-to-cuboid distance ablation table,
-  and P2C-Dis); it admits degenerate thin, stacked cuboids.
-- :func:`chamfer_distance_to_cuboids` is the bidirectional Chamfer baseline (Chamfer-Dis), which needs
-  differentiable samples on the cuboid surfaces; :func:`chamfer_distance` compares two point sets and
-  is also the evaluation metric.
-
-All results are SQUARED Euclidean distances. Shapes: points and normals (B, N, 3); cuboids as in
-:mod:`cuboidlib.geometry` (B, M, ...). A batch size of 1 on the points or on the cuboids is broadcast.
+:func:`point_to_cuboid_distance` is d(p_n, C_m) of Eq. (5) (Sec. 3.4.1). The baselines of Sec. 4.3
+are :func:`nearest_surface_distance` (projection to the closest surface, P2C-Dis) and
+:func:`chamfer_distance_to_cuboids` (Chamfer-Dis); :func:`chamfer_distance` between two point sets is
+also the evaluation metric. All results are SQUARED Euclidean distances. Points and normals are
+(B, N, 3), cuboids as in :mod:`cuboidlib.geometry`; a batch size of 1 on either side is broadcast.
 """
 
 from __future__ import annotations
@@ -52,29 +45,27 @@ def point_to_cuboid_distance(
 ) -> torch.Tensor:
     """The paper's point-to-cuboid distance d(p_n, C_m), Eq. (5) (Sec. 3.4.1), for all pairs.
 
-    points, normals: (B, N, 3), normals of unit length. centers (B, M, 3), quaternions (B, M, 4),
-    half_sizes (B, M, 3). Returns d: (B, N, M), d[b, n, m] = d(p_n, C_m) of shape b.
+    The face whose outward normal is closest to the point's normal is chosen (no gradient through
+    the choice); a point p^s = p + e n, e ~ N(0, sigma_s^2), is sampled along the normal; d is the
+    squared distance from the ORIGINAL point p to the point of that face nearest to p^s. d = 0 only
+    on a face whose outward normal is n; on a face tilted by theta, E[d] = sigma_s^2 sin^2 theta.
 
-    For each point p with normal n and each cuboid, in the cuboid's local frame:
+    Args:
+        points: (B, N, 3).
+        normals: (B, N, 3) unit normals of the points.
+        centers: (B, M, 3) cuboid centres t.
+        quaternions: (B, M, 4) unit quaternions r, (w, x, y, z).
+        half_sizes: (B, M, 3) positive half extents s.
+        sigma_s: standard deviation of e; 0 (with no offsets) is the unsampled variant.
+        offsets: optional (B, N) values of e, one per point shared by all cuboids (then sigma_s is
+            unused); ``sigma_s * torch.randn(B, N, generator=g)`` reproduces ``generator=g``.
+        generator: source of e when ``offsets`` is None.
+        validate: check shapes, finiteness, unit normals and quaternions and positive sizes; False
+            expects tensors of one float dtype on one device.
 
-    1. face selection: the face whose outward normal has the largest cosine with n. The six local
-       face normals are +-e_a, so the cosines are +-n_a: the face lies on the axis a with the largest
-       |n_a|, on the side sign(n_a). The choice is discrete and carries no gradient;
-    2. sampling: p^s = p + e n with e ~ N(0, sigma_s^2). One e per point, shared by all cuboids (as
-       in the authors' code); ``offsets`` (B, N) gives the e values themselves (sigma_s is then
-       unused), so ``offsets = sigma_s * torch.randn(B, N, generator=g)`` reproduces a call with
-       ``generator=g`` exactly. sigma_s = 0 (and no offsets) is the unsampled variant;
-    3. projection: q is the closest point of the face RECTANGLE to p^s: on axis a it is
-       sign * s_a (the face plane), on the two other axes p^s clamped to [-s_i, s_i];
-    4. distance: d = |q - p|^2 to the ORIGINAL point p (rotations keep lengths, so the local and the
-       world distance agree).
-
-    d = 0 exactly when p lies on a face whose outward normal is n (for any e). For p on a face whose
-    normal is tilted by theta from n (theta < 45 degrees, away from the face's edges), d = e^2 sin^2
-    theta, whose expectation sigma_s^2 sin^2 theta acts as a soft normal-alignment penalty.
-
-    Differentiable with respect to points, normals and the cuboid parameters. ``validate`` checks
-    shapes, finiteness, unit normals and quaternions and positive sizes (a few cheap reductions).
+    Returns:
+        (B, N, M) squared distances, d[b, n, m] = d(p_n, C_m); differentiable with respect to
+        points, normals and the cuboid parameters.
     """
     if validate:
         v = _validate_points_and_cuboids(
@@ -157,21 +148,17 @@ def nearest_surface_distance(
     half_sizes: TensorLike,
     validate: bool = True,
 ) -> torch.Tensor:
-    """Squared distance from every point to the closest point of every cuboid's SURFACE (no normals).
+    """Squared distance from every point to every cuboid's SURFACE, ignoring normals (P2C-Dis, Sec. 4.3).
 
-    points (B, N, 3); centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3). Returns
-    (B, N, M). This is the minimum-distance projection the paper compares against (Sec. 4.3:
-    the "Distance" column of the point-to-cuboid ablation, and P2C-Dis).
+    Inside a cuboid the distance is to its nearest face, not 0: the solid's interior is not its surface.
 
-    In the local frame with l = R^T (p - t):
+    Args:
+        points: (B, N, 3).
+        centers: (B, M, 3); quaternions: (B, M, 4) unit (w, x, y, z); half_sizes: (B, M, 3) positive.
+        validate: check the inputs; False expects tensors of one float dtype on one device.
 
-    - outside the cuboid, the closest surface point is l clamped to the box, so
-      d = sum_i max(|l_i| - s_i, 0)^2;
-    - inside (|l_i| < s_i for all i) the closest surface point lies on the nearest face, so
-      d = min_i (s_i - |l_i|)^2 (not 0: the solid's interior is not its surface).
-
-    Differentiable with respect to points and cuboid parameters (away from the kinks where the
-    nearest face changes).
+    Returns:
+        (B, N, M) squared distances, differentiable away from the kinks where the nearest face changes.
     """
     if validate:
         v = _validate_points_and_cuboids(
@@ -241,10 +228,14 @@ def nearest_neighbors(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Squared distance to and index of the nearest reference point, for every query point.
 
-    query (B, Nq, 3), reference (B, Nr, 3) (a batch size of 1 is broadcast). Returns
-    (sq_dist (B, Nq), index (B, Nq) long). The search runs without gradient in chunks of
-    ``chunk_size`` query points (default: about 2^24 distances per chunk); the returned distances are
-    recomputed exactly from the chosen pairs, so they are differentiable with respect to both sets.
+    Args:
+        query: (B, Nq, 3), Nq >= 1.
+        reference: (B, Nr, 3), Nr >= 1; a batch size of 1 on either side is broadcast.
+        chunk_size: query points searched at once; None: about 2^24 distances per chunk.
+
+    Returns:
+        ``(sq_dist, index)``, each (B, Nq); index is int64. The distances are recomputed from the
+        chosen pairs, so they are differentiable with respect to both sets.
     """
     q, r = _check_point_sets(query, reference, ("query", "reference"), "nearest_neighbors")
     index = nearest_index(q, r, _auto_chunk(q.shape[0], r.shape[1], chunk_size))
@@ -259,15 +250,19 @@ def chamfer_distance(
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Bidirectional Chamfer distance between point sets, one value per shape.
 
-    a (B, Na, 3), b (B, Nb, 3) (a batch size of 1 is broadcast). Convention (stated wherever
-    cuboidlib reports it): SQUARED L2 distances, MEAN over the points of each direction, SUM of the
+    The convention, stated wherever cuboidlib reports it: squared L2, mean per direction, sum of the
     two directions, no scaling::
 
         CD(a, b) = mean_i min_j |a_i - b_j|^2 + mean_j min_i |b_j - a_i|^2
 
-    Returns (B,), or with ``return_directions`` the tuple (total, a_to_b, b_to_a), each (B,).
-    Differentiable with respect to both sets (through the nearest pairs). Memory is bounded by
-    searching in chunks of ``chunk_size`` points of a (default: about 2^24 distances per chunk).
+    Args:
+        a: (B, Na, 3), Na >= 1.
+        b: (B, Nb, 3), Nb >= 1; a batch size of 1 on either side is broadcast.
+        chunk_size: points of a searched at once; None: about 2^24 distances per chunk.
+        return_directions: also return the two directions.
+
+    Returns:
+        (B,), or ``(total, a_to_b, b_to_a)``, each (B,); differentiable with respect to both sets.
     """
     x, y = _check_point_sets(a, b, ("a", "b"), "chamfer_distance")
     x_to_y, y_to_x = nearest_indices(x, y, _auto_chunk(x.shape[0], y.shape[1], chunk_size))
@@ -289,15 +284,23 @@ def chamfer_distance_to_cuboids(
     return_directions: bool = False,
     validate: bool = True,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Bidirectional Chamfer distance between a point cloud and the cuboids' surfaces (Chamfer-Dis).
+    """Chamfer distance between a point cloud and samples of the cuboids' surfaces (Chamfer-Dis, Sec. 4.3).
 
-    points (B, N, 3); centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3); exists:
-    optional (B, M) boolean mask, only existing cuboids are sampled. ``n_samples`` points (default:
-    N) are drawn uniformly on the cuboid surfaces with :func:`cuboidlib.geometry.sample_cuboid_surfaces`
-    (differentiable reparameterised sampling, randomness from ``generator``), then compared with
-    :func:`chamfer_distance`: squared L2, mean per direction, sum of both directions.
+    The samples come from :func:`cuboidlib.geometry.sample_cuboid_surfaces` (reparameterised, so
+    differentiable) and are compared by :func:`chamfer_distance`.
 
-    Returns (B,), or with ``return_directions`` (total, points_to_cuboids, cuboids_to_points).
+    Args:
+        points: (B, N, 3).
+        centers: (B, M, 3); quaternions: (B, M, 4) unit (w, x, y, z); half_sizes: (B, M, 3) positive.
+        n_samples: points sampled on the surfaces per shape; None: N.
+        exists: optional (B, M) bool mask; only existing cuboids are sampled.
+        generator: source of the samples.
+        chunk_size: as in :func:`chamfer_distance`.
+        return_directions: also return the two directions.
+        validate: check the inputs; False expects tensors of one float dtype on one device.
+
+    Returns:
+        (B,), or ``(total, points_to_cuboids, cuboids_to_points)``, each (B,).
     """
     if validate:
         v = _validate_points_and_cuboids(

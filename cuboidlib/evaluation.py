@@ -1,35 +1,21 @@
 """Scoring a trained network or the k-means baseline on a split of shapes (Sec. 4.1-4.2).
 
 :func:`evaluate_model` runs the network on a :class:`~cuboidlib.dataset.ShapeSet` and
-:func:`evaluate_baseline` fits the k-means + oriented-box baseline (:mod:`cuboidlib.baseline`) to
-each shape; both return the same dict of metrics (:mod:`cuboidlib.metrics`), which
-:func:`format_table` prints together with the conventions behind every number:
+:func:`evaluate_baseline` fits the boxes of :mod:`cuboidlib.baseline` to each shape; both return the
+same dict of metrics (:mod:`cuboidlib.metrics`), which :func:`format_table` prints with the convention
+behind every number:
 
-* **CD**: Chamfer distance between the input points and points sampled uniformly by area on the
-  existing cuboids, under one or more :class:`~cuboidlib.metrics.ChamferConvention` (default: the
-  paper's "symmetric L2 CD on 4096 points" read as squared L2, mean per direction, sum of the two
-  directions, scale 1), averaged over shapes.
-* **NC**: normal consistency, mean |n . n'| between each input normal and the normal of the nearest
-  point sampled on the cuboids, averaged over shapes (``normal_consistency``); ``normal_consistency_both``
-  also looks the other way, from every cuboid sample to its nearest input point, and averages the two
-  (:func:`cuboidlib.metrics.normal_consistency` with ``directions="both"``).
-* **mIoU** by the paper's label transfer (Sec. 4.2): the paper labels each primitive with the part
-  that most of its points carry on a random 20 % of the shapes, then scores the test set with those
-  labels. Here the labelled 20 % is drawn (seeded) from the evaluated split itself and the mIoU is
-  computed on the remaining 80 % of that split, so no scored shape helped choose the labels.
-  Segment of a point = argmax over the existing cuboids of the allocation W (network) or its k-means cluster
-  (baseline, whose indices carry no correspondence between shapes).
-  The IoU of every part label is kept beside the mean (``part_iou``), so a part that no cuboid
-  carries (IoU 0) is visible.
-* **N_AC**: average number of existing cuboids, existence probability > 0.5 (Tables 5-6).
-* **Box distance** (agreement of segmentation and abstraction, not a metric of the paper): the mean
-  distance of a point to the solid box of the cuboid it is segmented to
-  (:func:`~cuboidlib.metrics.segment_box_distance`), on shapes of diagonal 1.
-* **Reassigned points** (agreement of allocation and existence, not a metric of the paper): the share of
-  the points whose most allocated cuboid does not exist (:func:`~cuboidlib.metrics.reassigned_fraction`).
+* CD under one or more :class:`~cuboidlib.metrics.ChamferConvention`, and NC from the points
+  (``normal_consistency``) and both ways (``normal_consistency_both``), averaged over shapes.
+* mIoU by label transfer (Sec. 4.2): the paper labels with a random 20 % of the shapes and scores a test
+  set; here a seeded 20 % of the evaluated split gives the labels and the other 80 % is scored, so no
+  scored shape chose the labels. ``part_iou`` keeps every part's IoU beside the mean.
+* N_AC: existing cuboids per shape, existence probability > 0.5 (Tables 5-6).
+* Box distance and reassigned points, the course's measures: agreement of segmentation and abstraction,
+  and of allocation and existence.
 
-A shape on which the network predicts no existing cuboid is scored with its single most probable
-cuboid (counted in ``shapes_without_existing_cuboid``); N_AC counts the cuboids actually used.
+A shape on which the network predicts no existing cuboid is scored with its most probable cuboid
+(counted in ``shapes_without_existing_cuboid``); N_AC counts the cuboids actually used.
 """
 
 from __future__ import annotations
@@ -39,7 +25,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .applications import abstract_shapes
 from .baseline import fit_cluster_boxes
 from .metrics import (
@@ -73,14 +59,20 @@ def predict_cuboids(
 ) -> tuple[AbstractionBatch, int]:
     """Run the network in evaluation mode (z = mu) on every shape (:func:`cuboidlib.applications.abstract_shapes`).
 
-    Returns the predictions (an :class:`~cuboidlib.abstraction.AbstractionBatch` on the CPU whose
-    ``labels`` are the segmentation, with the allocation ``W``; a cuboid exists when its existence probability exceeds
-    0.5, and a shape with none keeps its most probable cuboid, :func:`existence_mask`; every point
-    is segmented to its most allocated existing cuboid) and the number of shapes that needed that
-    fallback. ``centers_from_allocation``: place each cuboid at the allocation-weighted centroid of
-    the points (:func:`cuboidlib.losses.allocation_weighted_centers`) instead of the predicted
-    translation, for networks trained with ``LossConfig(centers_from_allocation=True)`` (the
-    authors' code), whose translation head the losses never see.
+    A cuboid exists when its existence probability exceeds 0.5, and a shape with none keeps its most
+    probable cuboid; every point is segmented to its most allocated existing cuboid.
+
+    Args:
+        model: the network.
+        shapes: S shapes, points (S, N, 3).
+        batch_size: shapes per forward pass.
+        centers_from_allocation: place each cuboid at the allocation-weighted centroid of the points
+            (:func:`cuboidlib.losses.allocation_weighted_centers`), for networks trained with
+            ``LossConfig(centers_from_allocation=True)``, whose translation head the losses never see.
+
+    Returns:
+        (pred, fallback): an :class:`~cuboidlib.results.AbstractionBatch` on the CPU (labels (S, N),
+        W (S, N, M), exist_probs (S, M)), and the number of shapes that kept their most probable cuboid.
     """
     out = abstract_shapes(model, shapes.points, 0.5, centers_from_allocation, batch_size, normals=shapes.normals)
     empty = ~(out.exist_probs > 0.5).any(dim=1)
@@ -89,8 +81,16 @@ def predict_cuboids(
 
 
 def label_transfer_split(n_shapes: int, fraction: float = 0.2, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
-    """Seeded split of ``n_shapes`` into the labelled shapes (round(fraction * n), at least 1) and the
-    scored rest (at least 1). Returns two sorted int64 index tensors."""
+    """Seeded split of the shapes into labelled and scored ones, for the label transfer (Sec. 4.2).
+
+    Args:
+        n_shapes: at least 2.
+        fraction: in (0, 1); round(fraction * n_shapes) shapes are labelled, at least 1, leaving at least 1.
+        seed: seed of the permutation.
+
+    Returns:
+        (labelled, scored): sorted int64 index tensors.
+    """
     if not 0 < fraction < 1:
         raise ValueError(f"label_transfer_fraction must lie in (0, 1), got {fraction}")
     if n_shapes < 2:
@@ -114,10 +114,20 @@ def score_cuboids(
 ) -> dict:
     """CD (one entry per convention), NC, mIoU by label transfer and N_AC of cuboids fitted to ``shapes``.
 
-    The surface samples of shape i come from a generator seeded with ``(seed, i)``, so two
-    conventions with the same ``n_samples`` compare the same samples, and NC uses the samples of the
-    first convention. mIoU is None when the shapes have no part labels. See the module docstring
-    for the definitions.
+    The surface samples of shape i come from a generator seeded with (seed, i): conventions with the same
+    ``n_samples`` compare the same samples, and NC uses the samples of the first convention.
+
+    Args:
+        shapes: S shapes, points and normals (S, N, 3), labels (S, N) or None.
+        pred: their cuboids and segmentation, an :class:`~cuboidlib.results.AbstractionBatch` of S shapes.
+        label_transfer_fraction: share of the shapes that label the cuboids (:func:`label_transfer_split`).
+        conventions: the Chamfer conventions to report, at least one.
+        seed: seed of the surface samples and of the label-transfer split.
+
+    Returns:
+        A dict of JSON types: ``n_shapes``; ``chamfer``, per convention its fields, its ``convention``
+        (:meth:`~cuboidlib.metrics.ChamferConvention.describe`) and ``value``; ``normal_consistency``,
+        ``normal_consistency_both``, ``normal_samples``; and the keys of :func:`segmentation_scores`.
     """
     if not conventions:
         raise ValueError("give at least one Chamfer convention")
@@ -138,7 +148,7 @@ def score_cuboids(
     n_samples = conventions[0].n_samples
     terms = [normal_consistency_terms(points[i:i + 1], normals[i:i + 1], *cuboids(i), n_samples=n_samples,
                                       generator=_shape_generator(seed, i)) for i in range(n)]
-    from_points, from_cuboids = (torch.cat([t[j] for t in terms]) for j in (0, 1))
+    from_points, from_cuboids = (torch.cat([t[j] for t in terms]) for j in (0, 1))  # (S,) each
     nc = {"points": from_points, "both": 0.5 * (from_points + from_cuboids)}  # normal_consistency's two definitions
     return {
         "n_shapes": n,
@@ -152,16 +162,18 @@ def score_cuboids(
 
 def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer_fraction: float = 0.2,
                         seed: int = 0) -> dict:
-    """The scores of the segmentation alone (no surface sampling, cheap enough to run during training).
+    """The scores of the segmentation alone (no surface sampling: cheap enough to run during training).
 
-    Returns a dict: ``miou`` (label transfer, None without part labels), ``part_iou`` (part name ->
-    IoU, None for a part absent from the scored shapes), ``label_transfer`` (who was labelled, the
-    part of every cuboid index, and the ``confusion`` of the scored points, :func:`~cuboidlib.metrics.part_confusion`:
-    ``counts[t][p]`` points of part ``parts[t]`` labelled ``parts[p]``), ``box_distance`` (mean over shapes of
-    :func:`~cuboidlib.metrics.segment_box_distance`; None when the segmentation is of other points than
-    ``shapes``, as when cuboids are scored against a denser sampling), ``reassigned`` (mean over shapes of
-    :func:`~cuboidlib.metrics.reassigned_fraction`; None without an allocation, as for k-means boxes) and
-    ``n_ac``.
+    Args:
+        shapes, pred, label_transfer_fraction, seed: as in :func:`score_cuboids`.
+
+    Returns:
+        A dict: ``miou`` (None without part labels); ``part_iou`` (part name -> IoU, None for a part absent
+        from the scored shapes); ``label_transfer`` (the split, ``cuboid_labels`` and the ``confusion`` of
+        the scored points: ``counts[t][p]`` points of part ``parts[t]`` labelled ``parts[p]``);
+        ``box_distance`` (mean of :func:`~cuboidlib.metrics.segment_box_distance`, None when ``pred``
+        segments other points than ``shapes``); ``reassigned`` (mean of
+        :func:`~cuboidlib.metrics.reassigned_fraction`, None without an allocation W); ``n_ac``.
     """
     seg, c = pred.labels.cpu(), pred.cuboids
     box = None
@@ -197,12 +209,18 @@ def evaluate_model(
     name: str = "network",
     centers_from_allocation: bool = False,
 ) -> dict:
-    """Metrics of the network on ``shapes`` (CD, NC, mIoU by label transfer, N_AC), see :func:`score_cuboids`.
+    """Metrics of the network on ``shapes``: :func:`predict_cuboids`, then :func:`score_cuboids`.
 
-    The network runs in evaluation mode (BatchNorm running statistics, z = mu); for
-    ``centers_from_allocation`` see :func:`predict_cuboids` (pass the value the network was trained
-    with). The returned dict (JSON types only) also holds ``method`` (= ``name``), ``num_cuboids``
-    (M) and ``shapes_without_existing_cuboid``.
+    Args:
+        model: the network, run in evaluation mode (BatchNorm running statistics, z = mu).
+        shapes, label_transfer_fraction, conventions, seed: as in :func:`score_cuboids`.
+        batch_size: shapes per forward pass.
+        name: the result's ``method``.
+        centers_from_allocation: the value the network was trained with (:func:`predict_cuboids`).
+
+    Returns:
+        The dict of :func:`score_cuboids` and ``method``, ``num_cuboids`` (M) and
+        ``shapes_without_existing_cuboid``.
     """
     pred, fallback = predict_cuboids(model, shapes, batch_size, centers_from_allocation)
     result = {"method": name, "num_cuboids": pred.num_segments}
@@ -219,9 +237,19 @@ def evaluate_baseline(
     seed: int = 0,
     normal_weight: float = 0.2,
 ) -> dict:
-    """The k-means + oriented-box baseline (:func:`cuboidlib.baseline.fit_cluster_boxes`), scored like
-    the network: ``num_boxes`` clusters per shape (k-means seeded with ``seed``), cluster index =
-    segment index for the label transfer (indices do not correspond across shapes)."""
+    """The k-means boxes of :func:`cuboidlib.baseline.fit_cluster_boxes`, scored like the network.
+
+    A point's cluster is its segment for the label transfer; cluster indices do not correspond across shapes.
+
+    Args:
+        shapes, label_transfer_fraction, conventions: as in :func:`score_cuboids`.
+        num_boxes: clusters per shape.
+        seed: seed of k-means, of the surface samples and of the label-transfer split.
+        normal_weight: weight of the normals in the k-means features.
+
+    Returns:
+        The dict of :func:`evaluate_model`, with ``method`` "k-means boxes (K=num_boxes)".
+    """
     if not (isinstance(num_boxes, int) and num_boxes >= 1):
         raise ValueError(f"num_boxes must be a positive integer, got {num_boxes!r}")
     pred = AbstractionBatch.concatenate([fit_cluster_boxes(p, nrm, num_boxes, normal_weight=normal_weight, seed=seed)
@@ -233,8 +261,15 @@ def evaluate_baseline(
 
 
 def format_table(results: Sequence[dict], title: str | None = None) -> str:
-    """A plain-text table of :func:`evaluate_model` / :func:`evaluate_baseline` results, followed by
-    the convention of every column (Chamfer conventions numbered [1], [2], ...)."""
+    """A plain-text table of :func:`evaluate_model` / :func:`evaluate_baseline` results.
+
+    Args:
+        results: the result dicts, one row each.
+        title: a first line, or None.
+
+    Returns:
+        The table, then the convention of every column (Chamfer conventions numbered [1], [2], ...).
+    """
     if not results:
         raise ValueError("no results to format")
     conventions: list[str] = []

@@ -1,22 +1,15 @@
-"""Writing cuboid abstractions to files: JSON, meshes (GLB, OBJ, PLY), segmented point clouds, HTML.
+"""Writing cuboid abstractions to files: JSON, meshes (GLB, OBJ, PLY), segmented point clouds, HTML views.
 
-Every cuboid m is coloured ``PALETTE[m]`` (:mod:`cuboidlib.viz`) in every format, so a cuboid has
-the same colour in a lesson's figure, a mesh viewer and the HTML page.
-
-**Coordinates.** Shapes are abstracted in the course's normalised coordinates (bounding box
-centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`). That map is a translation and a
-uniform scale, so a cuboid goes back to the input's original coordinates with
+The formats share one module because they share two rules. Colour: cuboid m is ``PALETTE[m]``
+(:mod:`cuboidlib.viz`) everywhere, as in the lessons' figures. Coordinates: shapes are abstracted in
+normalised coordinates (bounding box centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`), and
+a cuboid goes back to the input's coordinates by
 
     centre_original = centre * scale + center,   size_original = size * scale,   rotation unchanged
 
 (:func:`denormalize_cuboids`, inverse :func:`normalize_cuboids`).
-:meth:`cuboidlib.abstraction.Abstraction.save` writes in the original coordinates unless asked for
-normalised output; the JSON says which it holds.
 
-JSON schema (``format`` "cuboidlib-cuboids", ``version`` 1)
--------------------------------------------------------------
-
-One file describes the M cuboids of ONE shape::
+JSON schema (``format`` "cuboidlib-cuboids", ``version`` 1), the M cuboids of ONE shape::
 
     {
       "format": "cuboidlib-cuboids",
@@ -51,28 +44,7 @@ One file describes the M cuboids of ONE shape::
 
 A world point is p = R l + center for a local point l in [-size/2, size/2]^3 (R = rotation_matrix).
 Numbers are written with full precision, so :func:`read_cuboids_json` returns exactly the cuboids
-that were written (float32 inputs come back bit for bit).
-
-Meshes (:func:`write_cuboid_mesh`, existing cuboids only, 8 corners and 12 outward triangles each):
-
-* **GLB**: one scene node and mesh per cuboid, named ``cuboid_07`` (two digits, more for M > 100),
-  with a PBR material of the same name whose base colour is the palette colour (the sRGB values, as
-  most tools write them);
-* **OBJ**: one object ``o cuboid_07`` per cuboid with material ``cuboid_07`` in the ``.mtl`` file
-  written next to it (``Kd`` = palette colour);
-* **PLY** (binary): vertices coloured with the palette (red, green, blue, alpha) and an int
-  ``cuboid`` property per face, the cuboid index.
-
-Segmented point clouds (:func:`write_segmented_point_cloud`): binary PLY with float ``x y z`` (and
-``nx ny nz``), uchar ``red green blue`` (palette colour of the point's cuboid, grey for label -1)
-and an int ``label`` = the cuboid index; :func:`cuboidlib.io.read_point_cloud` reads it back.
-
-HTML (:func:`write_view_html`): a self-contained plotly page (plotly.js embedded, about 4-5 MB, no
-server or internet needed) of one result or a folder of results, drawn by
-:func:`cuboidlib.viz.plot_cuboids_plotly`.
-
-Why one file: JSON, meshes, segmented points and the HTML view share one colour rule and one
-coordinate rule, stated once below.
+written (float32 inputs come back bit for bit).
 """
 
 from __future__ import annotations
@@ -87,10 +59,11 @@ import numpy as np
 import torch
 import trimesh
 
-from ._files import atomic_path, write_text_atomic
+from .files import MESH_FORMATS, atomic_path, write_text_atomic
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
-from .viz import UNLABELLED, cuboid_color
+from .io import read_point_cloud
+from .viz import UNLABELLED, cuboid_color, plot_cuboids_plotly, plot_cuboids_plotly_grid
 
 __all__ = [
     "JSON_FORMAT",
@@ -119,7 +92,8 @@ __all__ = [
 JSON_FORMAT = "cuboidlib-cuboids"
 JSON_VERSION = 1
 COORDINATES = ("original", "normalized")
-MESH_FORMATS = ("glb", "obj", "ply")
+# MESH_FORMATS, part of this module's names, is defined in cuboidlib.files, which the command line reads
+# without importing torch.
 
 #: The texts of the JSON's "convention" entry.
 CONVENTION = {
@@ -145,7 +119,14 @@ def _rgb255(hex_color: str) -> list[int]:
 
 
 def palette_rgba(m: int) -> np.ndarray:
-    """(m, 4) uint8 RGBA colours of cuboid indices 0 .. m - 1 (``cuboid_color``, alpha 255)."""
+    """RGBA colours of cuboid indices 0 .. m - 1 (:func:`cuboidlib.viz.cuboid_color`, alpha 255).
+
+    Args:
+        m: the number of cuboid indices.
+
+    Returns:
+        (m, 4) uint8.
+    """
     if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
         raise ValueError(f"m must be a non-negative integer, got {m!r}")
     return np.array([_rgb255(cuboid_color(i)) + [255] for i in range(m)], dtype=np.uint8).reshape(m, 4)
@@ -169,11 +150,16 @@ def _normalization(center, scale, b: int, like: torch.Tensor) -> tuple[torch.Ten
 
 
 def denormalize_cuboids(cuboids: Cuboids, center, scale) -> Cuboids:
-    """Cuboids in normalised coordinates -> the input's original coordinates.
+    """Cuboids in normalised coordinates -> the input's original coordinates (module docstring).
 
-    center: (3,) or (B, 3); scale: scalar or (B,) (as :func:`cuboidlib.normalization.normalize`
-    returns them). Centres become ``c * scale + center``, half sizes ``s * scale``; quaternions and
-    existence are unchanged (a translation and a uniform scale do not rotate anything).
+    Args:
+        cuboids: (B, M) cuboids in normalised coordinates.
+        center: (3,) or (B, 3) and scale: () or (B,), positive, as
+            :func:`cuboidlib.normalization.normalize` returns them.
+
+    Returns:
+        (B, M) cuboids with centres ``c * scale + center`` and half sizes ``s * scale``; quaternions and
+        existence unchanged.
     """
     c, s = _normalization(center, scale, cuboids.batch_size, cuboids.centers)
     return Cuboids(cuboids.centers * s[:, None, None] + c[:, None], cuboids.quaternions,
@@ -181,7 +167,15 @@ def denormalize_cuboids(cuboids: Cuboids, center, scale) -> Cuboids:
 
 
 def normalize_cuboids(cuboids: Cuboids, center, scale) -> Cuboids:
-    """Inverse of :func:`denormalize_cuboids`: centres ``(c - center) / scale``, half sizes ``s / scale``."""
+    """Inverse of :func:`denormalize_cuboids`: centres ``(c - center) / scale``, half sizes ``s / scale``.
+
+    Args:
+        cuboids: (B, M) cuboids in original coordinates.
+        center, scale: as for :func:`denormalize_cuboids`.
+
+    Returns:
+        (B, M) cuboids in normalised coordinates.
+    """
     c, s = _normalization(center, scale, cuboids.batch_size, cuboids.centers)
     return Cuboids((cuboids.centers - c[:, None]) / s[:, None, None], cuboids.quaternions,
                    cuboids.half_sizes / s[:, None, None], cuboids.exists)
@@ -198,7 +192,15 @@ def _one_shape(cuboids: Cuboids, index: int) -> tuple[torch.Tensor, torch.Tensor
 
 
 def cuboid_node_name(m: int, num_cuboids: int) -> str:
-    """Name of cuboid m in meshes: ``cuboid_07`` (at least two digits, enough for every index < M)."""
+    """Name of cuboid m in meshes: ``cuboid_07`` (at least two digits, enough for every index < M).
+
+    Args:
+        m: the cuboid index.
+        num_cuboids: M, the cuboid slots of the shape.
+
+    Returns:
+        The node, mesh and material name.
+    """
     return f"cuboid_{m:0{max(2, len(str(num_cuboids - 1)))}d}"
 
 
@@ -228,11 +230,21 @@ def cuboids_to_dict(
 ) -> dict:
     """The JSON document (module docstring) of shape ``index`` of ``cuboids``.
 
-    The cuboids must already be in ``coordinates`` ("original" or "normalized"); ``center`` and
-    ``scale`` record the input's normalisation (default: identity). part_labels: optional (M,)
-    integers, -1 = unknown; part_names: optional names of the labels. chamfer: a Chamfer distance
-    measured on the normalised shape, stated with ``chamfer_convention`` (required with it).
-    method: a dict of JSON types describing how the cuboids were made.
+    Args:
+        cuboids: (B, M) cuboids, already in ``coordinates``.
+        index: the shape to write.
+        coordinates: "original" or "normalized", the frame the cuboids are in.
+        center, scale: the input's normalisation, (3,) and a positive number (default: identity).
+        source: the input file name, or None.
+        method: JSON types describing how the cuboids were made, or None.
+        part_labels: optional (M,) integers, the part of every cuboid (-1 = unknown).
+        part_names: optional names of the part labels.
+        chamfer: optional Chamfer distance measured on the normalised shape.
+        chamfer_convention: how ``chamfer`` was measured (required with it).
+        points_file: optional name of the segmented points file written beside the JSON.
+
+    Returns:
+        A dict of JSON types.
     """
     if coordinates not in COORDINATES:
         raise ValueError(f"coordinates must be one of {COORDINATES}, got {coordinates!r}")
@@ -291,7 +303,15 @@ def cuboids_to_dict(
 
 
 def write_cuboids_json(path: str | os.PathLike, cuboids: Cuboids, index: int = 0, **kwargs) -> Path:
-    """Write shape ``index`` of ``cuboids`` as JSON; keyword arguments as :func:`cuboids_to_dict`."""
+    """Write shape ``index`` of ``cuboids`` as JSON, atomically.
+
+    Args:
+        path: the file to write.
+        cuboids, index, **kwargs: as for :func:`cuboids_to_dict`.
+
+    Returns:
+        ``path`` as a Path.
+    """
     path = Path(path)
     doc = cuboids_to_dict(cuboids, index, **kwargs)
     write_text_atomic(path, _dumps(doc) + "\n")
@@ -326,7 +346,19 @@ def _numbers(value, n: int, what: str) -> list[float]:
 def cuboids_from_dict(
     doc: dict, where: str = "cuboid JSON", dtype: torch.dtype = torch.float64
 ) -> tuple[Cuboids, dict]:
-    """Parse and check a JSON document of :func:`cuboids_to_dict`; see :func:`read_cuboids_json`."""
+    """Parse and check a JSON document of :func:`cuboids_to_dict`.
+
+    Args:
+        doc: the parsed JSON.
+        where: names the document in messages (a file name).
+        dtype: the dtype of the returned cuboids.
+
+    Returns:
+        ``(Cuboids (1, M), metadata)`` as :func:`read_cuboids_json`, in the stored coordinates.
+
+    Raises:
+        ValueError: naming ``where`` and the entry, for anything malformed.
+    """
     if not isinstance(doc, dict) or doc.get("format") != JSON_FORMAT:
         raise ValueError(f"{where}: not a cuboidlib cuboid file (no \"format\": \"{JSON_FORMAT}\")")
     version = doc.get("version")
@@ -393,14 +425,22 @@ def cuboids_from_dict(
 def read_cuboids_json(
     path: str | os.PathLike, coordinates: str | None = None, dtype: torch.dtype = torch.float64
 ) -> tuple[Cuboids, dict]:
-    """Read a file of :func:`write_cuboids_json` back as ``(Cuboids (1, M, ...), metadata)``.
+    """Read a file of :func:`write_cuboids_json` back.
 
-    coordinates: None keeps the stored frame; "original" or "normalized" converts with the stored
-    normalisation (and updates ``metadata["coordinates"]``). metadata: every top-level entry but
-    "cuboids", plus ``part_labels``, a list of M ints (-1 = unknown). Raises ``FileNotFoundError``
-    for a missing file and ``ValueError`` naming the file and the entry for anything malformed
-    (wrong lengths, NaN, non-unit quaternions, non-positive sizes, a rotation matrix that
-    contradicts its quaternion, ...).
+    Args:
+        path: the JSON file.
+        coordinates: None keeps the stored frame; "original" or "normalized" converts with the stored
+            normalisation (and updates ``metadata["coordinates"]``).
+        dtype: the dtype of the returned cuboids.
+
+    Returns:
+        ``(cuboids, metadata)``: (1, M) Cuboids, and every top-level entry but "cuboids" plus
+        ``part_labels``, a list of M ints (-1 = unknown).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: naming the file and the entry, for anything malformed (wrong lengths, NaN, non-unit
+            quaternions, non-positive sizes, a rotation matrix that contradicts its quaternion, ...).
     """
     path = Path(path)
     if not path.is_file():
@@ -435,8 +475,16 @@ def _existing_meshes(cuboids: Cuboids, index: int) -> list[tuple[int, trimesh.Tr
 
 
 def cuboid_scene(cuboids: Cuboids, index: int = 0) -> trimesh.Scene:
-    """A trimesh scene of the existing cuboids of shape ``index``: one node per cuboid, named
-    ``cuboid_07`` like its mesh and its PBR material (base colour = palette colour)."""
+    """A trimesh scene of the existing cuboids of one shape, as :func:`write_cuboid_mesh` writes to GLB.
+
+    Args:
+        cuboids: (B, M) cuboids.
+        index: the shape.
+
+    Returns:
+        A scene with one node per existing cuboid, named like its mesh and its PBR material
+        (:func:`cuboid_node_name`; base colour = palette colour).
+    """
     m = cuboids.num_cuboids
     scene = trimesh.Scene()
     for i, mesh in _existing_meshes(cuboids, index):
@@ -470,10 +518,20 @@ def _write_obj(path: Path, cuboids: Cuboids, index: int) -> None:
 
 
 def write_cuboid_mesh(path: str | os.PathLike, cuboids: Cuboids, index: int = 0) -> Path:
-    """Write the existing cuboids of shape ``index`` as a mesh, format by suffix (.glb, .obj, .ply).
+    """Write the existing cuboids of shape ``index`` as a mesh (8 corners, 12 outward triangles each).
 
-    See the module docstring for how each format stores the cuboid index and its colour. An OBJ
-    also writes its ``.mtl`` next to it. Returns the path of the mesh file.
+    The format follows the suffix. GLB: one node, mesh and PBR material per cuboid, named
+    ``cuboid_07`` (:func:`cuboid_node_name`), base colour = palette colour (sRGB values). OBJ: one object
+    and material per cuboid, in the ``.mtl`` written beside it (``Kd`` = palette colour). PLY (binary):
+    palette-coloured vertices and an int ``cuboid`` property per face.
+
+    Args:
+        path: a ``.glb``, ``.obj`` or ``.ply`` file.
+        cuboids: (B, M) cuboids.
+        index: the shape to write.
+
+    Returns:
+        ``path`` as a Path.
     """
     path = Path(path)
     kind = path.suffix.lower().lstrip(".")
@@ -488,11 +546,11 @@ def write_cuboid_mesh(path: str | os.PathLike, cuboids: Cuboids, index: int = 0)
     else:
         parts = _existing_meshes(cuboids, index)
         vertices = np.concatenate([mesh.vertices for _, mesh in parts])
-        faces = np.concatenate([mesh.faces + 8 * k for k, (_, mesh) in enumerate(parts)])
+        faces = np.concatenate([mesh.faces + 8 * k for k, (_, mesh) in enumerate(parts)])  # (12 K, 3)
         kept = [i for i, _ in parts]
         mesh = trimesh.Trimesh(vertices, faces, process=False)
         # one colour per cuboid on its own 8 vertices (vertex colours export without extra dependencies)
-        colors = np.repeat(palette_rgba(cuboids.num_cuboids)[kept], 8, axis=0)
+        colors = np.repeat(palette_rgba(cuboids.num_cuboids)[kept], 8, axis=0)  # (8 K, 4)
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colors)
         mesh.face_attributes["cuboid"] = np.repeat(kept, 12).astype(np.int32)
         with atomic_path(path) as tmp:
@@ -510,9 +568,19 @@ def _numpy(x) -> np.ndarray:
 
 
 def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals=None) -> Path:
-    """Write points (N, 3) coloured by their cuboid as a binary PLY (see the module docstring).
+    """Write points coloured by their cuboid as a binary PLY.
 
-    labels: (N,) cuboid index of every point (-1 = none, drawn grey); normals: optional (N, 3).
+    Vertex properties: float ``x y z`` (and ``nx ny nz``), uchar ``red green blue`` (the palette colour of
+    the point's cuboid, grey for -1) and int ``label``; :func:`cuboidlib.io.read_point_cloud` reads it back.
+
+    Args:
+        path: a ``.ply`` file.
+        points: (N, 3), N >= 1, finite.
+        labels: (N,) integers, the cuboid index of every point (-1 = none).
+        normals: optional (N, 3).
+
+    Returns:
+        ``path`` as a Path.
     """
     path = Path(path)
     if path.suffix.lower() != ".ply":
@@ -560,16 +628,6 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
 
 
 # ----------------------------------------------------------------------------------------------
-# A whole result
-# ----------------------------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------------------------
-# HTML view
-# ----------------------------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------------------------
 # Output folders: refuse to mix runs, and a manifest of what each run wrote
 # ----------------------------------------------------------------------------------------------
 
@@ -577,7 +635,14 @@ MANIFEST = "cuboidlib-manifest.json"
 
 
 def read_manifest(folder: str | os.PathLike) -> dict | None:
-    """The manifest of the run that wrote ``folder`` (None if there is none or it is unreadable)."""
+    """The manifest of the run that wrote ``folder``.
+
+    Args:
+        folder: a results folder.
+
+    Returns:
+        The manifest dict (``command``, ``complete``, ``files``), or None if there is none or it is unreadable.
+    """
     path = Path(folder) / MANIFEST
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -591,7 +656,17 @@ def read_manifest(folder: str | os.PathLike) -> dict | None:
 
 
 def write_manifest(folder: str | os.PathLike, files, command: str | None = None, complete: bool = True) -> Path:
-    """Record the files a run wrote in ``folder`` (names only) and whether the run completed."""
+    """Record the files a run wrote in ``folder`` and whether the run completed.
+
+    Args:
+        folder: the results folder.
+        files: the paths written there (only their names are kept).
+        command: the command line of the run, or None.
+        complete: whether the run finished.
+
+    Returns:
+        The path of the manifest file.
+    """
     names = sorted({Path(f).name for f in files})
     doc = {"format": "cuboidlib-manifest", "command": command, "complete": bool(complete), "files": names}
     return write_text_atomic(Path(folder) / MANIFEST, json.dumps(doc, indent=1) + "\n")
@@ -600,10 +675,17 @@ def write_manifest(folder: str | os.PathLike, files, command: str | None = None,
 def prepare_output_folder(folder: str | os.PathLike, overwrite: bool = False) -> Path:
     """Make ``folder`` ready for a new run's results without mixing them with an earlier run's.
 
-    An empty or new folder is used as it is. A folder that holds files is refused unless ``overwrite``;
-    then the files the earlier run listed in its manifest are removed first (files a cuboidlib run did
-    not write are never touched). A folder with files but no manifest is refused even with
-    ``overwrite``, as nothing says which files are stale.
+    A folder with files but no manifest is refused even with ``overwrite``: nothing says which files are stale.
+
+    Args:
+        folder: the results folder; created if missing.
+        overwrite: remove the files the earlier run listed in its manifest (never any other file).
+
+    Returns:
+        ``folder`` as a Path.
+
+    Raises:
+        ValueError: the folder holds files and ``overwrite`` is False, or it holds no manifest.
     """
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
@@ -623,6 +705,11 @@ def prepare_output_folder(folder: str | os.PathLike, overwrite: bool = False) ->
     for name in manifest["files"] + [MANIFEST]:
         (folder / name).unlink(missing_ok=True)
     return folder
+
+
+# ----------------------------------------------------------------------------------------------
+# HTML view
+# ----------------------------------------------------------------------------------------------
 
 
 def _result_jsons(path: Path) -> list[Path]:
@@ -647,7 +734,14 @@ def _result_jsons(path: Path) -> list[Path]:
 
 
 def cuboid_part_names(meta: dict) -> list[str | None] | None:
-    """The part name of every cuboid index of a result's JSON metadata (None where unknown), or None."""
+    """The part name of every cuboid index of a result.
+
+    Args:
+        meta: the metadata of :func:`read_cuboids_json`.
+
+    Returns:
+        M names (None where unknown), or None if the result names no parts.
+    """
     names, labels = meta.get("part_names"), meta.get("part_labels")
     if not names or labels is None:
         return None
@@ -655,8 +749,6 @@ def cuboid_part_names(meta: dict) -> list[str | None] | None:
 
 
 def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray | None, list | None]:
-    from .io import read_point_cloud
-
     cuboids, meta = read_cuboids_json(json_path)
     points, labels = np.zeros((0, 3)), None
     if meta.get("points_file"):
@@ -673,19 +765,23 @@ def write_view_html(
     cols: int = 4,
     per_page: int = 48,
 ) -> list[Path]:
-    """Self-contained HTML pages (plotly.js embedded, open offline in any browser) of results.
+    """Self-contained HTML pages of results (plotly.js embedded: they open offline in any browser).
 
-    result: a result JSON file, or a folder holding one or more (as written by
-    :meth:`cuboidlib.abstraction.Abstraction.save` or ``cuboidlib fit / abstract / generate /
-    interpolate``; a folder's manifest says which). One result is drawn with
-    :func:`cuboidlib.viz.plot_cuboids_plotly` (points coloured by cuboid, translucent cuboids, a
-    legend to toggle each cuboid), several as grids (:func:`cuboidlib.viz.plot_cuboids_plotly_grid`) of
-    at most ``per_page`` results per page, with links between the pages.
-    out: the first page (default: ``view.html`` in the folder, or next to the JSON file); page k > 1 is
-    ``view_k.html`` beside it. Returns the paths written.
+    One result is drawn with :func:`cuboidlib.viz.plot_cuboids_plotly` (a legend toggles each cuboid),
+    several as grids (:func:`cuboidlib.viz.plot_cuboids_plotly_grid`) with links between the pages.
+
+    Args:
+        result: a result JSON file, or a folder of them (as :meth:`cuboidlib.abstraction.Abstraction.save` and
+            ``cuboidlib fit / abstract / generate / interpolate`` write; a folder's manifest says which).
+        out: the first page (default: ``view.html`` in the folder, or beside the JSON file); page k > 1 is
+            ``<out stem>_k.html`` beside it.
+        max_points: points drawn per page (shared among the results of a grid).
+        cols: grid columns.
+        per_page: results per page.
+
+    Returns:
+        The paths of the pages written.
     """
-    from .viz import plot_cuboids_plotly, plot_cuboids_plotly_grid
-
     if isinstance(per_page, bool) or not isinstance(per_page, int) or per_page < 1:
         raise ValueError(f"per_page must be a positive integer, got {per_page!r}")
     source = Path(result)

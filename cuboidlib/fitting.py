@@ -1,51 +1,17 @@
-"""Per-shape fitting: M cuboids fitted to ONE point cloud by gradient descent on the paper's losses.
+"""Per-shape fitting: M cuboids fitted to ONE point cloud by Adam on the paper's losses, without a network.
 
-The paper trains a network that predicts the cuboids and the point-to-cuboid allocation W for every
-shape (Sec. 3). Here there is no network: the cuboid parameters and W of each shape are free
-variables, optimised directly with Adam on the same losses. This is the fastest way to see what the
-losses do to a single shape (lesson 03) and the engine of the command-line tool for a user's own
-point cloud.
+The free variables of each shape: centres (B, M, 3), quaternions q / |q| (B, M, 4) from free 4-vectors
+(starting at the identity, Sec. 3.4.5), half sizes exp(log s) (B, M, 3), and the allocation W, a softmax
+over the cuboids of free logits (B, N, M) (Eq. 3 without the network). The loss is the part of Eq. (9)
+that needs no network: L_recons (Eq. 4, with the distance of Eq. 5 or the nearest-surface one) +
+lambda_compact L_compact (Eq. 6). A cuboid exists at the end when w_m > eps_ext, as the existence targets
+are built (Sec. 3.4.3), so a part holding less than eps_ext of the points cannot keep a cuboid of its own.
 
-Free variables (for every shape b of a batch of B shapes, each fitted independently):
-
-- centres t (B, M, 3), free;
-- quaternions r (B, M, 4) = q / |q| from free 4-vectors q (initialised to the identity (1, 0, 0, 0),
-  like the bias of the paper's rotation head, Sec. 3.4.5);
-- half sizes s (B, M, 3) = exp(log s), always positive;
-- the allocation W (B, N, M) = softmax over the cuboids of free per-point logits (the paper's Eq. 3
-  without the network that predicts the logits).
-
-Loss per shape, minimised by Adam (the terms of Eq. 9 that make sense without a network):
-
-    L = L_recons + lambda_compact * L_compact
-
-- L_recons (Eq. 4) = (1/N) sum_n sum_m W_mn d(p_n, C_m), with d the normal-aware distance of Eq. (5)
-  (``distance="normal"``, new offsets along the normals at every step) or the nearest-surface
-  distance that ignores normals (``distance="nearest_surface"``, the ablation of Sec. 4.3);
-  ``allocation="nearest"`` replaces the free W by the hard nearest-cuboid allocation (P2C-Dis);
-- L_compact (Eq. 6) = (sum_m sqrt(w_m + eps_sps))^2 with w_m = (1/N) sum_n W_mn, by default in the
-  averaged form of the authors' code, (mean_m sqrt(w_m + eps_sps))^2 (see below).
-
-There is no existence head and no latent code, so L_exist and L_KL have nothing to train. The
-existence mask is read out from W at the end, exactly as the paper builds the existence targets
-(Sec. 3.4.3): cuboid m exists when w_m > eps_ext (and the cuboid with the largest w_m always exists).
-So a part holding fewer than eps_ext = 5 % of the points cannot be kept as a cuboid of its own.
-
-On the weight of the compactness loss: Eq. (6) sums over the cuboids, so L_compact is of order 1 to
-M, while L_recons is a mean SQUARED distance of order 1e-4 to 1e-2 for a shape of unit diagonal. With
-the paper's lambda_1 = 0.1 on Eq. (6) the compactness term dominates and a per-shape fit merges every
-part into one or two cuboids. The authors' public code averages over the cuboids instead, which is
-Eq. (6) divided by M^2 (see :func:`cuboidlib.losses.compactness_loss`). :class:`FitConfig` therefore
-keeps lambda_1 = 0.1 but uses the averaged form by default (``compactness_average=True``, i.e. an
-effective weight 0.1 / M^2 on Eq. 6); ``compactness_average=False`` gives the paper's literal form.
-
-The losses are not convex: a fit can stop in a local minimum (for example one cuboid spanning two
-legs of a table). A larger M (the default 16, one of the values of the paper's Table 6) gives k-means
-smaller clusters to start from, and ``restarts`` keeps the best of several initialisations.
-
-By default every shape is first normalised (bounding box centred at the origin, diagonal 1, see
-:mod:`cuboidlib.normalization`) so that the learning rates and sigma_s mean the same for every input;
-the fitted cuboids are mapped back to the input's coordinates.
+L_compact defaults to the authors' averaged form, Eq. (6) / M^2: with the literal form and lambda_1 = 0.1
+it outweighs L_recons, a mean squared distance, and a fit merges every part into one or two cuboids. The
+losses are not convex; ``restarts`` keeps the best of several starts. Shapes are normalised
+(:mod:`cuboidlib.normalization`) before the fit and the cuboids mapped back. Lesson 03 and the command
+line's ``fit`` use it.
 """
 
 from __future__ import annotations
@@ -59,11 +25,13 @@ import torch
 from tqdm import tqdm
 
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
-from .abstraction import AbstractionBatch
+from .results import AbstractionBatch
 from .baseline import kmeans
+from .config import torch_threads
 from .distance import nearest_surface_distance, point_to_cuboid_distance
 from .geometry import Cuboids, standardize_quaternion
 from .losses import (
+    LossConfig,
     allocation_portions,
     compactness_loss,
     existence_targets,
@@ -75,56 +43,45 @@ from .normalization import normalize
 __all__ = ["FitConfig", "FitResult", "kmeans", "initial_cuboids", "fit_cuboids"]
 
 DISTANCES = ("normal", "nearest_surface")
-ALLOCATIONS = ("soft", "nearest")
 INITS = ("kmeans", "random")
+#: The settings of :class:`~cuboidlib.losses.LossConfig` that the fit reads.
+FIT_LOSS_FIELDS = ("lambda_compact", "compactness_average", "sigma_s", "eps_sps", "eps_ext", "distance", "allocation")
+_NETWORK_ONLY = ("chamfer_samples", "centers_from_allocation", "existence_min_points", "lambda_consistency")
 
 
 @dataclass(frozen=True)
 class FitConfig:
     """Settings of :func:`fit_cuboids`.
 
-    num_cuboids: M, the number of cuboid slots (the fit decides how many exist); default 16.
-    steps: Adam steps. lr: learning rate of the cuboid parameters (centres, quaternions, log half
-      sizes); lr_logits: learning rate of the allocation logits.
-    lambda_compact: lambda_1 of Eq. (9), the weight of the compactness loss (paper: 0.1).
-    compactness_average: use the authors' code's form (mean_m sqrt(w_m + eps_sps))^2 = Eq. (6) / M^2
-      (default True, see the module docstring); False gives Eq. (6) as printed.
-    sigma_s: standard deviation of the sampling along the normals in Eq. (5) (paper: 0.05; 0 = none).
-    eps_sps: epsilon of the compactness loss, Eq. (6) (paper: 0.01).
-    eps_ext: existence threshold on the portions w_m (paper: 0.05, Sec. 3.4.3).
-    distance: "normal" (Eq. 5) or "nearest_surface" (the normal-blind ablation of Sec. 4.3).
-    allocation: "soft" (free softmax W, as the segmentation branch) or "nearest" (hard allocation to
-      the closest cuboid under ``distance``, the P2C-Dis ablation of Sec. 4.3).
-    init: "kmeans" (k-means++ seeding and Lloyd iterations on the positions) or "random" (centres at
-      M random points); both size each cuboid to its cluster and start W as a soft assignment to the
-      nearest centre. The initialisation depends only on the points, ``num_cuboids``, ``init`` and
-      ``seed``, so two configs that differ in the distance or the loss weights start identically.
-    init_sharpness: the initial logits are -sharpness * |p - c_m|^2 / (mean squared distance of the
-      points to their nearest centre); 0 starts from a uniform W. The default 0.1 starts from a
-      soft assignment, so every cuboid still feels the points of its neighbours: that is what lets
-      the fit merge cuboids that cover one part.
-    beta2: Adam's second-moment decay. The default 0.9 (instead of the usual 0.999) forgets the
-      large gradients of the first steps quickly, so the small, steady gradients that merge
-      over-split parts later in the fit still move the cuboids.
-    normalize: fit in normalised coordinates (bounding box centred, diagonal 1) and map back.
-    tol: a fit counts as converged when the mean total loss of the last 10 % of the steps is within
-      this relative tolerance of the mean of the 10 % before.
-    restarts: fit every shape this many times from different initialisations (one batch) and keep
-      the fit with the lowest final loss (costs ``restarts`` times more).
-    seed: seed of the initialisation and of the offsets along the normals.
+    Args:
+        num_cuboids: M, the cuboid slots (the fit decides how many exist).
+        steps: Adam steps.
+        lr: learning rate of the centres, quaternions and log half sizes.
+        lr_logits: learning rate of the allocation logits.
+        init: "kmeans" (k-means++ and Lloyd iterations on the positions) or "random" (centres at M random
+            points); both size each cuboid to its cluster. The start depends only on the points,
+            num_cuboids, init and seed, so configs that differ in the losses start alike.
+        init_sharpness: the initial logits are -init_sharpness * |p - c_m|^2 / D, D the mean squared
+            distance of the points to their nearest centre; 0 starts from a uniform W. A soft start lets
+            every cuboid feel its neighbours' points, so that the fit can merge cuboids on one part.
+        beta2: Adam's second-moment decay; 0.9 (not 0.999) forgets the large first gradients fast, so the
+            small late ones that merge over-split parts still move the cuboids.
+        normalize: fit in normalised coordinates (bounding box centred, diagonal 1) and map back.
+        tol: converged when the mean total loss of the last 10 % of the steps is within this relative
+            tolerance of the mean of the 10 % before.
+        restarts: fit every shape this many times from different starts, in one batch, and keep the lowest
+            final loss.
+        seed: seed of the initialisation and of the offsets along the normals.
+        loss: a :class:`~cuboidlib.losses.LossConfig` or its dict. The fit reads lambda_compact,
+            compactness_average (default True here: Eq. (6) / M^2), sigma_s, eps_sps, eps_ext, distance
+            ("normal" or "nearest_surface") and allocation ("segmentation", a free softmax W, or
+            "nearest_cuboid", P2C-Dis); the settings only a network uses must keep their defaults.
     """
 
     num_cuboids: int = 16
     steps: int = 300
     lr: float = 0.01
     lr_logits: float = 0.1
-    lambda_compact: float = 0.1
-    compactness_average: bool = True
-    sigma_s: float = 0.05
-    eps_sps: float = 0.01
-    eps_ext: float = 0.05
-    distance: str = "normal"
-    allocation: str = "soft"
     init: str = "kmeans"
     init_sharpness: float = 0.1
     beta2: float = 0.9
@@ -132,12 +89,20 @@ class FitConfig:
     tol: float = 0.02
     restarts: int = 1
     seed: int = 0
+    loss: LossConfig = field(default_factory=lambda: LossConfig(compactness_average=True))
 
     def __post_init__(self) -> None:
-        if self.distance not in DISTANCES:
-            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
-        if self.allocation not in ALLOCATIONS:
-            raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
+        if isinstance(self.loss, dict):
+            object.__setattr__(self, "loss", LossConfig.from_dict({"compactness_average": True, **self.loss}))
+        if not isinstance(self.loss, LossConfig):
+            raise TypeError(f"FitConfig.loss must be a LossConfig or a dict, got {type(self.loss).__name__}")
+        if self.loss.distance not in DISTANCES:
+            raise ValueError(f"FitConfig.loss.distance must be one of {DISTANCES} (the fit has no Chamfer "
+                             f"variant), got {self.loss.distance!r}")
+        unused = [name for name in _NETWORK_ONLY if getattr(self.loss, name) != getattr(LossConfig(), name)]
+        if unused:
+            raise ValueError(f"FitConfig.loss sets {unused}, which only training a network uses; the fit "
+                             f"reads {FIT_LOSS_FIELDS}")
         if self.init not in INITS:
             raise ValueError(f"init must be one of {INITS}, got {self.init!r}")
         for name in ("num_cuboids", "restarts", "seed"):
@@ -151,40 +116,43 @@ class FitConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-        for name in ("lambda_compact", "sigma_s", "eps_sps", "init_sharpness", "tol"):
+        for name in ("init_sharpness", "tol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
         if not (isinstance(self.beta2, (int, float)) and 0 <= self.beta2 < 1):
             raise ValueError(f"beta2 must lie in [0, 1), got {self.beta2!r}")
-        if not 0 <= self.eps_ext < 1:
-            raise ValueError(f"eps_ext must lie in [0, 1), got {self.eps_ext!r}")
+        if not 0 <= self.loss.eps_ext < 1:
+            raise ValueError(f"FitConfig.loss.eps_ext must lie in [0, 1), got {self.loss.eps_ext!r}")
 
     def replace(self, **changes) -> "FitConfig":
-        """A copy with some fields changed (validated again)."""
-        return FitConfig(**{**asdict(self), **changes})
+        """A copy with some fields changed (validated again); a ``loss`` dict is merged into the loss settings."""
+        loss = changes.pop("loss", {})
+        if isinstance(loss, dict):
+            loss = LossConfig.from_dict({**self.loss.to_dict(), **loss})
+        fields_now = {f: getattr(self, f) for f in self.__dataclass_fields__ if f != "loss"}
+        return FitConfig(**{**fields_now, **changes, "loss": loss})
 
 
 @dataclass(kw_only=True)
 class FitResult(AbstractionBatch):
-    """What :func:`fit_cuboids` returns: an :class:`~cuboidlib.abstraction.AbstractionBatch` (always
-    batch-first: a single (N, 3) cloud gives B = 1) plus the record of the optimisation.
+    """What :func:`fit_cuboids` returns: an AbstractionBatch (B = 1 for one (N, 3) cloud) and the fit's record.
 
-    cuboids: the fitted :class:`~cuboidlib.geometry.Cuboids` (B, M, ...) in the input's coordinates,
-      with ``exists`` (B, M) set to the read-out w_m > eps_ext (the cuboid with the largest w_m always
-      exists).
-    labels: (B, N) long, each point's cuboid, argmax of W over the EXISTING cuboids (a point whose
-      largest W entry belongs to a dropped cuboid goes to its most likely existing one).
-    W: (B, N, M) the final allocation (softmax of the logits, or one-hot for ``allocation="nearest"``).
-    portions: (B, M) w_m = mean_n W_mn.
-    initial: the cuboids the optimisation started from (B, M, ...), input coordinates.
-    history: per-step loss terms averaged over the batch (of the kept restarts), lists of floats under
-      "total", "reconstruction", "compactness" and "existing" (mean number of cuboids with w_m > eps_ext).
-    converged: (B,) bool, see ``FitConfig.tol``.
-    final_loss: (B,) the total loss of the returned cuboids and W (without sampling along the normals),
-      in the coordinates the fit works in (normalised ones when ``config.normalize``).
-    elapsed_s: wall-clock time of the fit in seconds.
-    config: the :class:`FitConfig` used.
+    Attributes:
+        cuboids: (B, M, ...) the fitted :class:`~cuboidlib.geometry.Cuboids`, input coordinates; ``exists``
+            (B, M) is w_m > eps_ext, the largest w_m always existing (a refinement: the start's slots that
+            still hold a point).
+        labels: (B, N) int64, each point's most allocated EXISTING cuboid.
+        W: (B, N, M) the final allocation (softmax of the logits, one-hot for "nearest_cuboid").
+        portions: (B, M) w_m = mean_n W_mn.
+        initial: (B, M, ...) the cuboids the fit started from, input coordinates.
+        history: per-step terms averaged over the batch (of the kept restarts), lists of floats under
+            "total", "reconstruction", "compactness" and "existing" (mean count of w_m > eps_ext).
+        converged: (B,) bool, see ``FitConfig.tol``.
+        final_loss: (B,) total loss of the returned cuboids and W, without offsets along the normals, in
+            the fit's coordinates (normalised ones with ``config.normalize``).
+        elapsed_s: wall-clock seconds.
+        config: the :class:`FitConfig` used.
     """
 
     portions: torch.Tensor
@@ -245,15 +213,18 @@ def _check_inputs(points, normals) -> tuple[torch.Tensor, torch.Tensor]:
 def initial_cuboids(
     points: torch.Tensor, config: FitConfig, generator: torch.Generator | None = None
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The starting point of :func:`fit_cuboids` (normally called by it).
+    """The start of :func:`fit_cuboids` (normally called by it; ``points`` are not checked).
 
-    points: (B, N, 3) in the coordinates the fit works in. Returns (centers (B, M, 3), quaternions
-    (B, M, 4) all identity, half_sizes (B, M, 3), logits (B, N, M)). Centres come from k-means
-    (``init="kmeans"``) or are M distinct random points (``init="random"``); each cuboid's half sizes
-    are sqrt(3) times the standard deviation of its cluster along each axis (the half extent of a
-    uniform distribution with that spread), at least 1 % of the cloud's bounding-box diagonal; the
-    logits are -init_sharpness * |p_n - c_m|^2 / D, with D the mean squared distance of the points to
-    their nearest centre, so W starts as a soft nearest-centre assignment.
+    Centres from k-means or M distinct random points; half sizes sqrt(3) times each cluster's standard
+    deviation per axis (a uniform distribution's half extent), at least 1 % of the bounding-box diagonal.
+
+    Args:
+        points: (B, N, 3) in the fit's coordinates, N >= num_cuboids.
+        config: reads num_cuboids, init and init_sharpness.
+        generator: source of the k-means seeds or the random points (None: torch's global one).
+
+    Returns:
+        (centers (B, M, 3), quaternions (B, M, 4) identity, half_sizes (B, M, 3), logits (B, N, M)).
     """
     b, n, _ = points.shape
     m = config.num_cuboids
@@ -295,34 +266,30 @@ def _converged(totals: torch.Tensor, tol: float) -> torch.Tensor:
 
 def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool = False,
                 start: AbstractionBatch | None = None) -> FitResult:
-    """Fit ``config.num_cuboids`` cuboids to each point cloud by gradient descent (see the module doc).
+    """Fit ``config.num_cuboids`` cuboids to each point cloud by Adam (see the module docstring).
 
-    points, normals: (N, 3) for one shape or (B, N, 3) for B shapes fitted at once (independently,
-    in one batched optimisation), numpy arrays or tensors; normals must be non-zero (they are
-    normalised to unit length) and N >= num_cuboids. The fit runs on the points' device, in their
-    float dtype (float32 unless float64 is given).
+    The B shapes are fitted independently in one batched optimisation, on the points' device and in their
+    float dtype (float32 unless float64 is given); deterministic for a given config.
 
-    With ``config.restarts = R > 1`` every shape is fitted R times from different initialisations (in
-    the same batch) and the fit with the lowest final loss is kept: the losses are not convex, and
-    the lowest loss is the best abstraction by the paper's own criterion.
+    Args:
+        points: (N, 3) for one shape or (B, N, 3), numpy or torch; N >= num_cuboids.
+        normals: the same shape, non-zero (normalised to unit length here).
+        config: the settings; with ``restarts`` R > 1 each shape is fitted R times and the lowest final
+            loss kept.
+        progress: a tqdm bar with the loss terms, and a note on shapes that have not converged.
+        start: refinement from an :class:`~cuboidlib.results.AbstractionBatch` of the same B shapes and N
+            points (typically a network's, :func:`cuboidlib.applications.abstract_shapes`), in the points'
+            coordinates, with ``W`` or ``labels``. Its M slots are kept (``config.num_cuboids`` is ignored,
+            ``restarts`` must be 1), the logits start at log W (W clamped at 1e-4), slots absent from the
+            start stay empty, and a slot exists at the end when it holds a point, so the cuboid indices,
+            and a network's part correspondence, survive.
 
-    Deterministic for a given ``config`` (the seed drives the initialisation and the offsets along
-    the normals). ``progress=True`` shows a tqdm bar with the current loss terms and reports shapes
-    that have not converged.
+    Returns:
+        A :class:`FitResult`, batch-first.
 
-    ``start`` (refinement): instead of the k-means start, begin from given cuboids and allocation,
-    typically a network's (:func:`cuboidlib.applications.abstract_shapes`): an
-    :class:`~cuboidlib.abstraction.AbstractionBatch` of the same B shapes and N points, in the points'
-    coordinates, with its soft allocation ``W`` (or only ``labels``). Its M slots are kept: the number
-    of cuboids is M (``config.num_cuboids`` is ignored), slots that do not exist in the start get no
-    points and stay absent, and a slot exists at the end when it still holds a point, so the result
-    keeps the start's cuboid indices (and with them a network's part correspondence). The initial
-    logits are log W (W clamped at 1e-4), so the allocation changes slowly, and only where the
-    geometry asks for it; ``config.restarts`` must be 1.
-
-    Returns a :class:`FitResult` (always batch-first). Raises ``ValueError`` for bad inputs and
-    ``FloatingPointError`` if a loss becomes NaN or infinite (the message names the step and the
-    shape; lower ``lr``/``lr_logits``).
+    Raises:
+        FloatingPointError: a loss became NaN or infinite; the message names the step and the shape
+            (lower ``lr`` or ``lr_logits``).
     """
     if not isinstance(config, FitConfig):
         raise TypeError(f"config must be a FitConfig, got {type(config).__name__}")
@@ -344,7 +311,8 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
 
     r = config.restarts
     begin = None if start is None else _normalised_start(start, center, scale, p)
-    run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress, begin)
+    with torch_threads(1 if b * r == 1 else None):  # one shape: one thread (see torch_threads)
+        run = _optimise(p.repeat_interleave(r, dim=0), nrm.repeat_interleave(r, dim=0), config, progress, begin)
     # keep, for every shape, the restart with the lowest final loss (rows b * R ... b * R + R - 1)
     best = run["final_loss"].view(b, r).argmin(dim=1) + torch.arange(b, device=p.device) * r
     pick = {key: value[best] for key, value in run.items() if key != "records"}
@@ -364,7 +332,7 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
     exists = pick["exists"]
     return FitResult(
         cuboids=Cuboids(fitted_c, pick["quaternions"], fitted_s, exists, validate=False),
-        labels=pick["W"].masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1),
+        labels=pick["W"].masked_fill(~exists[:, None, :], -1.0).argmax(dim=-1),  # (B, N), existing cuboids only
         W=pick["W"],
         portions=pick["portions"],
         initial=Cuboids(init_c, pick["initial_quaternions"], init_s, validate=False),
@@ -415,6 +383,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
     final_loss, initial_*) and "records": per-step (steps, B) tensors of the loss terms.
     """
     b, n, _ = p.shape
+    loss = config.loss
     generator = torch.Generator().manual_seed(config.seed)
     if start is None:
         c0, q0, s0, logits0 = initial_cuboids(p, config, generator)
@@ -425,39 +394,39 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
     centers = c0.clone().requires_grad_(True)
     quat_raw = q0.clone().requires_grad_(True)
     log_sizes = s0.log().requires_grad_(True)
-    logits = logits0.transpose(1, 2).contiguous().requires_grad_(config.allocation == "soft")  # (B, M, N)
+    logits = logits0.transpose(1, 2).contiguous().requires_grad_(loss.allocation == "segmentation")  # (B, M, N)
     groups = [{"params": [centers, quat_raw, log_sizes], "lr": config.lr}]
-    if config.allocation == "soft":
+    if loss.allocation == "segmentation":
         groups.append({"params": [logits], "lr": config.lr_logits})
     optimizer = torch.optim.Adam(groups, betas=(0.9, config.beta2))
 
     def evaluate(offsets: torch.Tensor | None):
         quaternions = quat_raw / torch.linalg.vector_norm(quat_raw, dim=-1, keepdim=True)
         half_sizes = log_sizes.exp()
-        if config.distance == "normal":
+        if loss.distance == "normal":
             d = point_to_cuboid_distance(
                 p, nrm, centers, quaternions, half_sizes, sigma_s=0.0, offsets=offsets, validate=False
             )
         else:
             d = nearest_surface_distance(p, centers, quaternions, half_sizes, validate=False)
-        if config.allocation == "nearest":
+        if loss.allocation == "nearest_cuboid":
             W = nearest_cuboid_allocation(d if blocked is None else d.masked_fill(blocked.transpose(1, 2), math.inf))
         else:  # logits are stored (B, M, N): a softmax over a short LAST axis is many times slower on CPU
             free = logits if blocked is None else logits.masked_fill(blocked, -math.inf)
             W = torch.softmax(free, dim=1).transpose(1, 2)
         w = allocation_portions(W)
         recons = reconstruction_loss(W, d)
-        compact = compactness_loss(w, config.eps_sps, average_over_cuboids=config.compactness_average)
-        return recons + config.lambda_compact * compact, recons, compact, W, w
+        compact = compactness_loss(w, loss.eps_sps, average_over_cuboids=loss.compactness_average)
+        return recons + loss.lambda_compact * compact, recons, compact, W, w
 
-    sampled = config.distance == "normal" and config.sigma_s > 0
+    sampled = loss.distance == "normal" and loss.sigma_s > 0
     records = {key: torch.empty(config.steps, b, dtype=torch.float64)
                for key in ("total", "reconstruction", "compactness", "existing")}
     bar = tqdm(range(config.steps), desc="fitting cuboids", disable=not progress, leave=False)
     for step in bar:
         offsets = None
         if sampled:
-            offsets = config.sigma_s * torch.randn(b, n, generator=generator, dtype=p.dtype).to(p.device)
+            offsets = loss.sigma_s * torch.randn(b, n, generator=generator, dtype=p.dtype).to(p.device)
         total, recons, compact, W, w = evaluate(offsets)
         if not torch.isfinite(total).all():
             total, recons, compact = total.detach(), recons.detach(), compact.detach()
@@ -469,7 +438,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
         optimizer.zero_grad(set_to_none=True)
         total.sum().backward()  # a sum, so every shape's gradient is independent of the batch size
         optimizer.step()
-        existing = (w.detach() > config.eps_ext).sum(dim=-1)
+        existing = (w.detach() > loss.eps_ext).sum(dim=-1)  # (B,)
         for key, value in zip(records, (total, recons, compact, existing)):
             records[key][step] = value.detach().double().cpu()
         if progress and (step % 10 == 0 or step == config.steps - 1):
@@ -480,7 +449,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
     with torch.no_grad():
         final_loss, _, _, W, w = evaluate(None)
         if blocked is None:
-            exists = existence_targets(w, config.eps_ext) > 0
+            exists = existence_targets(w, loss.eps_ext) > 0
         else:  # a refinement keeps the start's slots that still hold a point
             exists = torch.nn.functional.one_hot(W.argmax(dim=-1), W.shape[-1]).any(dim=1) & ~blocked[:, :, 0]
         exists |= w == w.amax(dim=-1, keepdim=True)  # at least one cuboid per shape

@@ -1,31 +1,12 @@
-"""Cuboid geometry: rotations, local frames, faces, corners, meshes and surface sampling (Sec. 3).
+"""Cuboid geometry (Sec. 3): rotations, local frames, faces, corners, meshes and surface sampling.
 
-A cuboid C_m is the paper's triple (t, r, s) (Sec. 3, "Our Approach"):
-
-- ``centers`` t: (B, M, 3), the cuboid's centre in world coordinates;
-- ``quaternions`` r: (B, M, 4), a unit quaternion in (w, x, y, z) order that rotates the cuboid's local
-  axes into the world;
-- ``half_sizes`` s: (B, M, 3), the half extents along the local x, y and z axes (the cuboid spans
-  [-s_x, s_x] x [-s_y, s_y] x [-s_z, s_z] in its own frame).
-
-A world point p and its local coordinates l are related by p = R l + t, with R the rotation matrix of
-r (its columns are the cuboid's local axes written in world coordinates).
-
-Conventions used throughout cuboidlib:
-
-- Faces are numbered 0..5 in the order +x, -x, +y, -y, +z, -z (:data:`FACE_NORMALS`).
-- Corners are numbered 0..7 by the bits of the index: bit 0 is the sign of x, bit 1 of y, bit 2 of z,
-  with 0 = minus and 1 = plus, so corner 0 is (-s_x, -s_y, -s_z) and corner 7 is (+s_x, +s_y, +s_z)
-  (:data:`CORNER_SIGNS`).
-
-Every tensor function is differentiable with respect to the cuboid parameters and the points, and
-works on the device and dtype of its inputs (numpy arrays are accepted and converted). Functions
-validate their inputs by default; ``validate=False`` skips the checks for hot loops and then expects
-tensors of one float dtype on one device. The functional API is the primary one; :class:`Cuboids`
-is a small container that bundles a batch of cuboids and calls into it.
-
-Why one file: the cuboid type and every geometric operation on it (frames, faces, corners,
-sampling, meshes) form one concept that every other module uses.
+A cuboid C_m is the paper's triple (t, r, s): ``centers`` t (B, M, 3), unit ``quaternions`` r (B, M, 4)
+in (w, x, y, z) order, and ``half_sizes`` s (B, M, 3), so that it spans [-s_x, s_x] x [-s_y, s_y] x
+[-s_z, s_z] in its own frame. A world point is p = R l + t, the columns of R = R(r) being the local axes.
+Faces are numbered +x, -x, +y, -y, +z, -z (:data:`FACE_NORMALS`); corner k has the sign + on axis i when
+bit i of k is set (:data:`CORNER_SIGNS`). Functions accept tensors or arrays and validate them;
+``validate=False`` skips the checks in hot loops and then expects tensors of one float dtype on one device.
+:class:`Cuboids` bundles a batch and calls into the functions.
 """
 
 from __future__ import annotations
@@ -129,13 +110,15 @@ CUBOID_TRIANGLES = _build_triangles()
 def quaternion_to_rotation_matrix(q: torch.Tensor, validate: bool = True) -> torch.Tensor:
     """Rotation matrix of a quaternion (w, x, y, z).
 
-    q: (..., 4). Returns R: (..., 3, 3), whose columns are the rotated local x, y, z axes, so a local
-    point l maps to the world point R l + t.
+    The formula uses 2 / |q|^2, so a quaternion that drifted slightly from unit length still gives
+    an exact rotation.
 
-    The formula uses s = 2 / |q|^2, which equals the textbook unit-quaternion formula when |q| = 1 and
-    still gives an exact rotation when a quaternion has drifted slightly from unit length.
-    With ``validate`` (default) q must be finite and unit length within 1e-3; zero or clearly
-    non-unit quaternions raise a ``ValueError`` that says how to fix them.
+    Args:
+        q: (..., 4) quaternions.
+        validate: require finite, unit-length quaternions (within 1e-3).
+
+    Returns:
+        (..., 3, 3) matrices R whose columns are the local x, y, z axes: a local point l maps to R l + t.
     """
     q = as_float_tensor(q, "quaternions")
     if q.dim() < 1 or q.shape[-1] != 4:
@@ -150,14 +133,17 @@ def quaternion_to_rotation_matrix(q: torch.Tensor, validate: bool = True) -> tor
         (s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)),
         (s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)),
     )
-    return torch.stack([torch.stack(row, dim=-1) for row in rows], dim=-2)
+    return torch.stack([torch.stack(row, dim=-1) for row in rows], dim=-2)  # (..., 3, 3)
 
 
 def standardize_quaternion(q: torch.Tensor) -> torch.Tensor:
     """Choose the canonical sign of each quaternion (q and -q are the same rotation).
 
-    q: (..., 4) in (w, x, y, z) order. Returns q with w >= 0; when w is exactly 0, the first non-zero
-    of x, y, z is made positive. Differentiable (a sign flip).
+    Args:
+        q: (..., 4) quaternions (w, x, y, z).
+
+    Returns:
+        (..., 4): q with w >= 0, or where w == 0 the first non-zero component positive.
     """
     q = as_float_tensor(q, "quaternions")
     nonzero = q.detach() != 0
@@ -170,7 +156,12 @@ def standardize_quaternion(q: torch.Tensor) -> torch.Tensor:
 def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Hamilton product a * b of quaternions (w, x, y, z): the rotation b followed by a.
 
-    a, b: (..., 4), broadcast against each other. Returns (..., 4). R(a * b) = R(a) @ R(b).
+    Args:
+        a: (..., 4) quaternions.
+        b: (..., 4) quaternions, broadcast against ``a``.
+
+    Returns:
+        (..., 4) products, with R(a * b) = R(a) @ R(b).
     """
     a = as_float_tensor(a, "a")
     b = as_float_tensor(b, "b")
@@ -188,14 +179,20 @@ def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def rotation_matrix_to_quaternion(R: torch.Tensor, validate: bool = True, tol: float = 1e-3) -> torch.Tensor:
-    """Unit quaternion (w, x, y, z) of a rotation matrix, canonical sign (w >= 0).
+    """Unit quaternion (w, x, y, z) of a rotation matrix, with the canonical sign of :func:`standardize_quaternion`.
 
-    R: (..., 3, 3). Returns q: (..., 4) with ``quaternion_to_rotation_matrix(q) == R``.
+    Each entry uses the best-conditioned of four equivalent formulas: robust for every rotation, half turns included.
 
-    Robust for every rotation, including 180-degree turns: of the four algebraically equivalent
-    formulas (led by w, x, y or z), each entry uses the one with the largest, well-conditioned
-    square root. With ``validate`` R must be finite, orthonormal and have determinant +1 within
-    ``tol`` (a reflection raises a ``ValueError``).
+    Args:
+        R: (..., 3, 3) rotation matrices.
+        validate: require finite, orthonormal matrices with determinant +1 (within ``tol``).
+        tol: tolerance of those checks.
+
+    Returns:
+        (..., 4) unit quaternions q with ``quaternion_to_rotation_matrix(q) == R``.
+
+    Raises:
+        ValueError: with ``validate``, for a non-orthonormal matrix or a reflection.
     """
     R = as_float_tensor(R, "R")
     if R.dim() < 2 or R.shape[-2:] != (3, 3):
@@ -251,10 +248,16 @@ def random_quaternions(
     dtype: torch.dtype | None = None,
     device: torch.device | str | None = None,
 ) -> torch.Tensor:
-    """Uniformly random rotations as unit quaternions (w, x, y, z) with w >= 0.
+    """Uniformly random rotations (over SO(3)) as unit quaternions (w, x, y, z) with w >= 0.
 
-    Returns a tensor of shape (*shape, 4). A normalised 4-d standard Gaussian is uniform on the unit
-    sphere S^3, which gives rotations uniformly distributed over SO(3).
+    Args:
+        *shape: leading shape of the result.
+        generator: source of randomness.
+        dtype: float dtype; None: torch's default.
+        device: device; None: torch's default.
+
+    Returns:
+        (*shape, 4) unit quaternions (normalised 4-d Gaussians, uniform on S^3).
     """
     g = torch.randn(*shape, 4, generator=generator, dtype=dtype, device=device)
     return standardize_quaternion(g / g.norm(dim=-1, keepdim=True))
@@ -323,12 +326,21 @@ def validate_cuboids(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """Check a batch of cuboids and return it as float tensors of one dtype and device.
 
-    centers (B, M, 3), quaternions (B, M, 4) unit (w, x, y, z), half_sizes (B, M, 3) positive,
-    exists (B, M) boolean or None. Raises ``ValueError`` naming the argument for: wrong shapes,
-    B or M that disagree, NaN/inf, zero or non-unit quaternions (beyond ``quaternion_tol``), zero or
-    negative half sizes; ``TypeError`` for a float ``exists`` (probabilities must be thresholded).
-    Cost: a few reductions over B * M numbers.
-    Returns (centers, quaternions, half_sizes, exists) with dtypes promoted to a common float dtype.
+    Args:
+        centers: (B, M, 3), M >= 1.
+        quaternions: (B, M, 4) unit quaternions (w, x, y, z).
+        half_sizes: (B, M, 3), positive.
+        exists: optional (B, M) mask, bool or 0/1 integers.
+        quaternion_tol: allowed deviation of |q| from 1.
+
+    Returns:
+        ``(centers, quaternions, half_sizes, exists)``, promoted to a common float dtype; exists is
+        a bool tensor or None.
+
+    Raises:
+        ValueError: naming the argument, for wrong or disagreeing shapes, NaN/inf, non-unit
+            quaternions or non-positive half sizes.
+        TypeError: for a float ``exists`` (threshold probabilities first).
     """
     t = _validate_cuboid_parts(
         {"centers": centers, "quaternions": quaternions, "half_sizes": half_sizes}, quaternion_tol
@@ -406,8 +418,14 @@ def world_to_local(
 ) -> torch.Tensor:
     """Coordinates of every point in every cuboid's local frame, l = R^T (p - t).
 
-    points: (B, N, 3); centers: (B, M, 3); quaternions: (B, M, 4). A batch size of 1 on either side
-    is broadcast. Returns (B, N, M, 3): entry [b, n, m] is point n of shape b in the frame of cuboid m.
+    Args:
+        points: (B, N, 3).
+        centers: (B, M, 3).
+        quaternions: (B, M, 4) unit (w, x, y, z); a batch size of 1 on either side is broadcast.
+        validate: check the inputs; False expects tensors of one float dtype on one device.
+
+    Returns:
+        (B, N, M, 3): entry [b, n, m] is point n of shape b in the frame of cuboid m.
     """
     if validate:
         v = _validate_points_and_cuboids(
@@ -436,8 +454,14 @@ def local_to_world(
 ) -> torch.Tensor:
     """Inverse of :func:`world_to_local`: p = R l + t.
 
-    local_points: (B, N, M, 3) (point n in the frame of cuboid m); centers: (B, M, 3);
-    quaternions: (B, M, 4). Returns (B, N, M, 3) world coordinates.
+    Args:
+        local_points: (B, N, M, 3), point n in the frame of cuboid m.
+        centers: (B, M, 3).
+        quaternions: (B, M, 4) unit (w, x, y, z).
+        validate: check the inputs; False expects tensors of one float dtype on one device.
+
+    Returns:
+        (B, N, M, 3) world coordinates.
     """
     if validate:
         v = _common_float(
@@ -452,7 +476,13 @@ def local_to_world(
 def directions_to_local(directions: TensorLike, quaternions: TensorLike, validate: bool = True) -> torch.Tensor:
     """Directions (e.g. normals) in every cuboid's local frame, R^T d (no translation).
 
-    directions: (B, N, 3); quaternions: (B, M, 4). Returns (B, N, M, 3).
+    Args:
+        directions: (B, N, 3).
+        quaternions: (B, M, 4) unit (w, x, y, z).
+        validate: check the inputs; False expects tensors of one float dtype on one device.
+
+    Returns:
+        (B, N, M, 3) local directions.
     """
     if validate:
         v = _validate_points_and_cuboids(
@@ -467,7 +497,16 @@ def directions_to_world(
     quaternions: TensorLike,
     validate: bool = True,
 ) -> torch.Tensor:
-    """Inverse of :func:`directions_to_local`: R d. local_directions (B, N, M, 3) -> (B, N, M, 3)."""
+    """Inverse of :func:`directions_to_local`: R d.
+
+    Args:
+        local_directions: (B, N, M, 3), direction n in the frame of cuboid m.
+        quaternions: (B, M, 4) unit (w, x, y, z).
+        validate: check the inputs; False expects tensors of one float dtype on one device.
+
+    Returns:
+        (B, N, M, 3) world directions.
+    """
     if validate:
         v = _common_float(
             {"local_directions": local_directions, **_validate_cuboid_parts({"quaternions": quaternions})}
@@ -484,13 +523,17 @@ def directions_to_world(
 
 
 def cuboid_face_normals(quaternions: TensorLike, validate: bool = True) -> torch.Tensor:
-    """World outward normals of the six faces of every cuboid.
+    """World outward normals of the six faces of every cuboid: plus/minus the columns of R.
 
-    quaternions: (B, M, 4). Returns (B, M, 6, 3) in the :data:`FACE_NORMALS` order
-    (+x, -x, +y, -y, +z, -z): R applied to the local normals, i.e. plus/minus the columns of R.
+    Args:
+        quaternions: (B, M, 4) unit (w, x, y, z).
+        validate: require finite unit quaternions.
+
+    Returns:
+        (B, M, 6, 3) in the :data:`FACE_NORMALS` order (+x, -x, +y, -y, +z, -z).
     """
     R = quaternion_to_rotation_matrix(quaternions, validate=validate)
-    return torch.einsum("...ij,fj->...fi", R, FACE_NORMALS.to(R))
+    return torch.einsum("...ij,fj->...fi", R, FACE_NORMALS.to(R))  # (B, M, 6, 3)
 
 
 def cuboid_corners(
@@ -501,20 +544,28 @@ def cuboid_corners(
 ) -> torch.Tensor:
     """The eight corners of every cuboid, t + R (sigma_k * s).
 
-    centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3). Returns (B, M, 8, 3) in the
-    :data:`CORNER_SIGNS` order (corner k has +s_i on axis i when bit i of k is set).
+    Args:
+        centers: (B, M, 3); quaternions: (B, M, 4) unit (w, x, y, z); half_sizes: (B, M, 3) positive.
+        validate: check the inputs (:func:`validate_cuboids`).
+
+    Returns:
+        (B, M, 8, 3) in the :data:`CORNER_SIGNS` order (corner k has +s_i on axis i when bit i of k is set).
     """
     if validate:
         centers, quaternions, half_sizes, _ = validate_cuboids(centers, quaternions, half_sizes)
     R = quaternion_to_rotation_matrix(quaternions, validate=False)
     local = CORNER_SIGNS.to(half_sizes) * half_sizes[..., None, :]  # (B, M, 8, 3)
-    return torch.einsum("bmij,bmkj->bmki", R, local) + centers[..., None, :]
+    return torch.einsum("bmij,bmkj->bmki", R, local) + centers[..., None, :]  # (B, M, 8, 3)
 
 
 def cuboid_face_areas(half_sizes: TensorLike) -> torch.Tensor:
     """Areas of the six faces, in the :data:`FACE_NORMALS` order.
 
-    half_sizes: (..., 3). Returns (..., 6): the +x and -x faces have area (2 s_y)(2 s_z), and so on.
+    Args:
+        half_sizes: (..., 3).
+
+    Returns:
+        (..., 6): the +x and -x faces have area (2 s_y)(2 s_z), and so on.
     """
     s = as_float_tensor(half_sizes, "half_sizes")
     if s.dim() < 1 or s.shape[-1] != 3:
@@ -555,12 +606,15 @@ def cuboids_to_trimesh(
 ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Triangle mesh of the cuboids of ONE shape (8 vertices and 12 outward triangles per cuboid).
 
-    centers (M, 3), quaternions (M, 4), half_sizes (M, 3): tensors or arrays of one shape (no batch
-    axis). exists: optional (M,) boolean mask; cuboids marked False are left out. colors: optional
-    per-cuboid colours (M, 3) or (M, 4), floats in [0, 1] or integers in [0, 255], applied to the
-    cuboid's faces. Returns one ``trimesh.Trimesh`` holding all kept cuboids (each a watertight
-    component with volume 8 s_x s_y s_z), or with ``split=True`` a list with one mesh per kept
-    cuboid, in cuboid order. Vertices are float64 numpy; gradients do not flow into meshes.
+    Args:
+        centers: (M, 3), no batch axis; quaternions: (M, 4) unit (w, x, y, z); half_sizes: (M, 3).
+        exists: optional (M,) bool mask; cuboids marked False are left out.
+        colors: optional (M, 3) or (M, 4) per-cuboid face colours, floats in [0, 1] or integers in [0, 255].
+        split: return one mesh per kept cuboid instead of one mesh of all.
+
+    Returns:
+        A ``trimesh.Trimesh`` (each cuboid a watertight component, float64 vertices, no gradient), or
+        with ``split`` a list of them in cuboid order.
     """
     def single(x, name):
         x = as_float_tensor(x, name).detach()
@@ -614,18 +668,20 @@ def sample_cuboid_surfaces(
     generator: torch.Generator | None = None,
     validate: bool = True,
 ) -> SurfaceSamples:
-    """Uniform samples on the union of the cuboids' surfaces, with their outward normals.
+    """Area-uniform samples on all the cuboids' surfaces (overlaps included), with outward normals.
 
-    centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3); exists: optional (B, M) boolean
-    mask (only cuboids marked True are sampled; every shape needs at least one). Returns
-    :class:`SurfaceSamples` (points (B, n, 3), normals (B, n, 3), cuboid_index (B, n)).
+    A face is drawn with probability proportional to its area, then a uniform point (a, b) on it;
+    the map from (a, b) to the point is differentiable (reparameterisation), the face choice is not.
 
-    Each sample picks one of the 6 M faces of its shape with probability proportional to the face's
-    area (so the density is uniform over the total area), then a uniform point (a, b) in [-1, 1]^2 on
-    that face: local point = (n_f + a u_f + b v_f) * s, world point = R local + t. The draw of faces
-    and of (a, b) is random; the map from them to points is differentiable, so gradients flow to the
-    centers, quaternions and half sizes (reparameterisation). The face choice itself carries no
-    gradient (it is discrete). Randomness comes only from ``generator``.
+    Args:
+        centers: (B, M, 3); quaternions: (B, M, 4) unit (w, x, y, z); half_sizes: (B, M, 3) positive.
+        n_points: n, samples per shape.
+        exists: optional (B, M) bool mask; only existing cuboids are sampled (at least one per shape).
+        generator: the only source of randomness.
+        validate: check the inputs; False expects tensors of one float dtype on one device.
+
+    Returns:
+        :class:`SurfaceSamples`: points (B, n, 3), normals (B, n, 3), cuboid_index (B, n) int64.
     """
     if validate:
         centers, quaternions, half_sizes, exists = validate_cuboids(centers, quaternions, half_sizes, exists)
@@ -647,14 +703,14 @@ def sample_cuboid_surfaces(
 
     normals_local = FACE_NORMALS.to(centers)[face]  # (B, n, 3)
     tangents = FACE_TANGENTS.to(centers)[face]  # (B, n, 2, 3)
-    unit = normals_local + ab[..., 0:1] * tangents[..., 0, :] + ab[..., 1:2] * tangents[..., 1, :]
+    unit = normals_local + ab[..., 0:1] * tangents[..., 0, :] + ab[..., 1:2] * tangents[..., 1, :]  # (B, n, 3)
 
     def pick(x: torch.Tensor) -> torch.Tensor:  # (B, M, ...) -> (B, n, ...) for each sample's cuboid
         index = cuboid.reshape(b, n_points, *([1] * (x.dim() - 2))).expand(b, n_points, *x.shape[2:])
         return torch.gather(x, 1, index)
 
     R = pick(quaternion_to_rotation_matrix(quaternions, validate=False))  # (B, n, 3, 3)
-    points = torch.einsum("bnij,bnj->bni", R, unit * pick(half_sizes)) + pick(centers)
+    points = torch.einsum("bnij,bnj->bni", R, unit * pick(half_sizes)) + pick(centers)  # (B, n, 3)
     normals = torch.einsum("bnij,bnj->bni", R, normals_local)
     return SurfaceSamples(points, normals, cuboid)
 
@@ -666,12 +722,14 @@ def sample_cuboid_surfaces(
 
 @dataclass
 class Cuboids:
-    """A batch of cuboids: centers (B, M, 3), unit quaternions (B, M, 4), half_sizes (B, M, 3) and an
-    optional boolean ``exists`` mask (B, M) (the paper's indicator delta_m, Sec. 3).
+    """A batch of cuboids; its methods are thin conveniences over this module's functions.
 
-    Construction validates and converts the fields (see :func:`validate_cuboids`); pass
-    ``validate=False`` to skip that in a hot loop. The functional API of this module stays the primary
-    one; the methods below are thin conveniences over it.
+    Args:
+        centers: (B, M, 3).
+        quaternions: (B, M, 4) unit (w, x, y, z).
+        half_sizes: (B, M, 3) positive.
+        exists: optional (B, M) bool mask, the paper's indicator delta_m (Sec. 3); None: all exist.
+        validate: check and convert the fields with :func:`validate_cuboids` at construction.
     """
 
     centers: torch.Tensor
@@ -703,7 +761,15 @@ class Cuboids:
         return self.exists
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Cuboids:
-        """A copy on another device and/or float dtype (the mask stays boolean)."""
+        """A copy on another device and/or float dtype, unvalidated.
+
+        Args:
+            device: target device; None keeps each tensor's.
+            dtype: float dtype of the cuboid tensors; None keeps it (the mask stays bool).
+
+        Returns:
+            A new :class:`Cuboids`.
+        """
         move = lambda x: x.to(device=device or x.device, dtype=dtype or x.dtype)  # noqa: E731
         exists = None if self.exists is None else self.exists.to(device or self.exists.device)
         return Cuboids(move(self.centers), move(self.quaternions), move(self.half_sizes), exists, validate=False)
@@ -728,7 +794,15 @@ class Cuboids:
         return cuboid_face_normals(self.quaternions, validate=False)
 
     def sample_surface(self, n_points: int, generator: torch.Generator | None = None) -> SurfaceSamples:
-        """Area-weighted samples on the existing cuboids, see :func:`sample_cuboid_surfaces`."""
+        """Area-weighted samples on the existing cuboids, see :func:`sample_cuboid_surfaces`.
+
+        Args:
+            n_points: n, samples per shape.
+            generator: the only source of randomness.
+
+        Returns:
+            :class:`SurfaceSamples`: points (B, n, 3), normals (B, n, 3), cuboid_index (B, n).
+        """
         return sample_cuboid_surfaces(
             self.centers, self.quaternions, self.half_sizes, n_points, self.exists, generator, validate=False
         )
@@ -739,7 +813,16 @@ class Cuboids:
         colors=None,
         split: bool = False,
     ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
-        """Mesh of the existing cuboids of shape ``index``, see :func:`cuboids_to_trimesh`."""
+        """Mesh of the existing cuboids of one shape, see :func:`cuboids_to_trimesh`.
+
+        Args:
+            index: the shape, in [-B, B).
+            colors: optional (M, 3) or (M, 4) per-cuboid colours.
+            split: one mesh per cuboid.
+
+        Returns:
+            A ``trimesh.Trimesh``, or with ``split`` a list of them.
+        """
         if not -self.batch_size <= index < self.batch_size:
             raise IndexError(f"index {index} is out of range for a batch of {self.batch_size} shapes")
         exists = None if self.exists is None else self.exists[index]

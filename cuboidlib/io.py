@@ -1,28 +1,10 @@
-"""Reading and writing the shape formats a user brings, and the course's sample files.
+"""Reading and writing the shape files a user brings (meshes, point clouds, dataset layouts) and the samples.
 
-Supported inputs (all end up as a :class:`PointCloud`: points, normals, optional part labels):
-
-* **meshes** that trimesh reads (OBJ, PLY with faces, OFF, STL, GLB/GLTF):
-  :func:`load_mesh_as_point_cloud` samples points area-uniformly with the face normals;
-* **point clouds**: :func:`read_point_cloud` reads PLY (ASCII or binary, with or without normals,
-  optional per-vertex ``label``), text files of rows ``x y z [nx ny nz [label]]`` (the
-  ShapeNet-part "normal" layout; ``.txt``, ``.pts``, ``.xyz``) and NumPy ``.npy`` arrays of shape
-  (N, 3), (N, 6) (the layout of the authors' released data) or (N, 7) (with a label column);
-* **dataset layouts**: :func:`shapenet_part_files` (synset folders + ``train_test_split`` JSON
-  lists) with :func:`shapenet_part_labels` for its part ids, and :func:`authors_layout_files`
-  (``<category>_<split>.npy`` or ``.txt`` name lists + a ``<category>/`` folder of (N, 6) ``.npy``).
-
-:func:`load_point_cloud` is the one entry point used by the dataset and the command-line tool: it
-reads any of these, validates, subsamples, estimates missing normals (:mod:`cuboidlib.normals`) and
-normalises with the course convention (:mod:`cuboidlib.normalization`), keeping ``(center, scale)``
-so results can be written back in the user's coordinates.
-
-Writers: :func:`write_point_cloud` (PLY with normals and a ``label`` property, text rows, ``.npy``)
-and :func:`write_data_samples` (the committed ``data_samples/`` folder). Every error names the file
-and the problem (``FileNotFoundError`` for a missing file, ``ValueError`` otherwise).
-
-Why one file: every format is read into the same :class:`PointCloud` through the same validation,
-so a malformed file of any format fails with the same kind of message.
+Every format is read into one :class:`PointCloud` through one validation, so a malformed file of any format
+fails with the same kind of message, naming the file (``FileNotFoundError`` if missing, else ``ValueError``).
+:func:`load_point_cloud` is the entry point of the dataset and the command line: it reads, validates,
+subsamples, estimates missing normals and normalises (:mod:`cuboidlib.normalization`), keeping
+``(center, scale)`` so results can be written back in the user's coordinates.
 """
 
 from __future__ import annotations
@@ -38,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ._files import atomic_path
+from .files import atomic_path
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
 from .shapes import CATEGORIES, PART_NAMES, make_shape, plot_shapes
@@ -83,8 +65,8 @@ class PointCloud:
         points: (N, 3) float32.
         normals: (N, 3) float32 unit normals, or None.
         labels: (N,) int64 part labels, or None.
-        center: (3,) float64 and scale: float, the normalisation applied, so that the original
-            coordinates are ``points * scale + center`` (identity when not normalised).
+        center, scale: (3,) float64 and a float, the normalisation applied: the original coordinates
+            are ``points * scale + center`` (identity when not normalised).
         source: the file it came from (for messages), or None.
     """
 
@@ -116,8 +98,12 @@ def validate_point_cloud(points: np.ndarray, normals: np.ndarray | None = None, 
                          source: str = "point cloud", n_points: int | None = None) -> None:
     """Raise ``ValueError`` naming ``source`` when the arrays are not a usable point cloud.
 
-    Checks: points (N, 3) with N >= 1 (and N >= ``n_points`` when given), finite, not all identical;
-    normals (N, 3), finite, no zero vectors; labels (N,) integers.
+    Args:
+        points: (N, 3), N >= 1, finite, not all identical.
+        normals: optional (N, 3), finite, no zero vector.
+        labels: optional (N,).
+        source: names the cloud in messages (a file name).
+        n_points: if given, the least N accepted.
     """
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{source}: points must have shape (N, 3), got {points.shape}")
@@ -333,12 +319,16 @@ def _read_npy(path: Path) -> PointCloud:
 
 
 def read_point_cloud(path: str | os.PathLike) -> PointCloud:
-    """Read a point cloud file as stored (no normalisation, no estimation).
+    """Read a point cloud file as stored (no normalisation, no estimation of normals).
 
-    Formats by suffix: ``.ply`` (ASCII or binary; vertex properties x, y, z, optional nx, ny, nz and
-    label), ``.txt``/``.pts``/``.xyz`` (whitespace or comma separated rows ``x y z [nx ny nz
-    [label]]``) and ``.npy`` (array (N, 3), (N, 6) or (N, 7)). Normals are renormalised to unit
-    length; labels are int64.
+    Args:
+        path: by suffix, ``.ply`` (ASCII or binary; vertex properties x, y, z, optional nx, ny, nz and
+            label), ``.txt``/``.pts``/``.xyz`` (whitespace or comma separated rows ``x y z [nx ny nz
+            [label]]``, the ShapeNet-part "normal" layout) or ``.npy`` ((N, 3), (N, 6) as the authors'
+            released data, or (N, 7)).
+
+    Returns:
+        A :class:`PointCloud`: float32 points, unit float32 normals or None, int64 labels or None.
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -366,7 +356,14 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
 
 
 def read_labels(path: str | os.PathLike) -> np.ndarray:
-    """Read a label file with one integer per line (e.g. ShapeNet-part ``.seg``) as (N,) int64."""
+    """Read a label file with one integer per line (e.g. ShapeNet-part ``.seg``).
+
+    Args:
+        path: the label file.
+
+    Returns:
+        (N,) int64.
+    """
     path = _check_file(path)
     tokens = path.read_text(errors="replace").split()
     try:
@@ -377,11 +374,21 @@ def read_labels(path: str | os.PathLike) -> np.ndarray:
 
 
 def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None, ascii: bool = False) -> Path:
-    """Write points (N, 3), optional normals (N, 3) and labels (N,) by the file suffix.
+    """Write a point cloud atomically, in the format of the file suffix.
 
-    ``.ply``: binary little-endian (or ASCII with ``ascii=True``) with float x, y, z, nx, ny, nz and
-    an int ``label`` property; ``.txt``: rows ``x y z [nx ny nz [label]]``; ``.npy``: an (N, 3),
-    (N, 6) or (N, 7) float array. Labels in ``.txt``/``.npy`` need normals (the column layout).
+    ``.ply``: float x, y, z, nx, ny, nz and an int ``label`` property; ``.txt``: rows ``x y z [nx ny nz
+    [label]]``; ``.npy``: an (N, 3), (N, 6) or (N, 7) float32 array. Labels in ``.txt`` and ``.npy`` need
+    normals (the column layout).
+
+    Args:
+        path: a ``.ply``, ``.txt`` or ``.npy`` file.
+        points: (N, 3).
+        normals: optional (N, 3).
+        labels: optional (N,) integers.
+        ascii: write a ``.ply`` as ASCII instead of binary little-endian.
+
+    Returns:
+        ``path`` as a Path.
     """
     path = Path(path)
     points = np.asarray(points, dtype=np.float64)
@@ -504,7 +511,14 @@ def _ply_face_labels(mesh: trimesh.Trimesh) -> np.ndarray | None:
 
 
 def is_mesh_file(path: str | os.PathLike) -> bool:
-    """True for mesh files (OBJ, OFF, STL, GLB/GLTF, and PLY files that have faces)."""
+    """Whether ``path`` is a mesh file (OBJ, OFF, STL, GLB/GLTF, or a PLY file with faces).
+
+    Args:
+        path: an existing file.
+
+    Returns:
+        True for a mesh, False otherwise.
+    """
     path = _check_file(path)
     suffix = path.suffix.lower()
     if suffix == ".ply":
@@ -538,6 +552,9 @@ def load_point_cloud(
         k: neighbours for normal estimation.
         fewer_ok: for point clouds with fewer than ``n_points`` points, keep them all instead of
             raising.
+
+    Returns:
+        A :class:`PointCloud` with normals; its ``center`` and ``scale`` map it back to the file's coordinates.
     """
     path = _check_file(path)
     if normals not in ("auto", "estimate", "file"):
@@ -577,10 +594,16 @@ def load_point_cloud(
 
 
 def shapenet_part_labels(raw: np.ndarray, category: str, numbering: str = "global") -> np.ndarray:
-    """Map ShapeNet-part part ids to indices into ``PART_NAMES[category]`` (table support -> leg).
+    """Map ShapeNet-part part ids to indices into ``PART_NAMES[category]`` (table support -> leg, Sec. 4.2).
 
-    ``numbering="global"``: the 0-49 ids of the "normal" layout's 7th column; ``"one-based"``:
-    the per-category 1..K ids of the original ``.seg`` files.
+    Args:
+        raw: integer part ids, any shape.
+        category: "airplane", "chair" or "table".
+        numbering: "global", the 0-49 ids of the "normal" layout's 7th column, or "one-based", the
+            per-category 1..K ids of the original ``.seg`` files.
+
+    Returns:
+        int64 labels of the shape of ``raw``.
     """
     if category not in SHAPENET_PART_IDS:
         raise ValueError(f"ShapeNet-part labels are known for {tuple(SHAPENET_PART_IDS)}, not {category!r}")
@@ -604,10 +627,15 @@ def shapenet_part_labels(raw: np.ndarray, category: str, numbering: str = "globa
 def shapenet_part_files(root: str | os.PathLike, category: str, split: str = "train") -> list[Path]:
     """Files of ``category`` in a ShapeNet-part "normal" folder for one split.
 
-    Layout: ``root/synsetoffset2category.txt`` (lines ``Chair 03001627``),
-    ``root/train_test_split/shuffled_<split>_file_list.json`` (entries
-    ``shape_data/<synset>/<id>``) and ``root/<synset>/<id>.txt``. ``split`` is "train", "val",
-    "test" or "trainval".
+    Args:
+        root: the folder, holding ``synsetoffset2category.txt`` (lines ``Chair 03001627``),
+            ``train_test_split/shuffled_<split>_file_list.json`` (entries ``shape_data/<synset>/<id>``) and
+            ``<synset>/<id>.txt``.
+        category: a category name of ``synsetoffset2category.txt``, any case.
+        split: "train", "val", "test" or "trainval".
+
+    Returns:
+        The listed ``.txt`` files, in the order of the split lists.
     """
     root = Path(root)
     cat_file = _check_file(root / "synsetoffset2category.txt")
@@ -643,9 +671,15 @@ def shapenet_part_files(root: str | os.PathLike, category: str, split: str = "tr
 def authors_layout_files(root: str | os.PathLike, category: str, split: str = "train") -> list[Path]:
     """Files of one split in the layout of the authors' released data.
 
-    Layout: ``root/<category>_<split>.npy`` (a NumPy array of file names) or
-    ``root/<category>_<split>.txt`` (one name per line), and ``root/<category>/<name>`` holding an
-    (N, 6) array (xyz + normal); a name without suffix gets ``.npy``.
+    Args:
+        root: the folder, holding ``<category>_<split>.npy`` (an array of file names) or
+            ``<category>_<split>.txt`` (one name per line), and ``<category>/<name>`` files of (N, 6)
+            arrays (xyz + normal); a name without suffix gets ``.npy``.
+        category: the category's folder name.
+        split: the split's name in the list file names.
+
+    Returns:
+        The listed files, in the order of the list.
     """
     root = Path(root)
     npy, txt = root / f"{category}_{split}.npy", root / f"{category}_{split}.txt"
@@ -670,8 +704,18 @@ def authors_layout_files(root: str | os.PathLike, category: str, split: str = "t
 
 
 def write_shape_mesh(path: str | os.PathLike, shape) -> Path:
-    """Write a :class:`cuboidlib.shapes.Shape` as a binary PLY mesh: its parts' meshes concatenated
-    (not boolean-merged), vertices coloured by part (``PART_COLORS``), an int ``label`` per face."""
+    """Write a :class:`cuboidlib.shapes.Shape` as a binary PLY mesh.
+
+    The parts' meshes are concatenated (not boolean-merged), vertices coloured by part (``PART_COLORS``),
+    with an int ``label`` per face, which :func:`load_mesh_as_point_cloud` carries to the sampled points.
+
+    Args:
+        path: the ``.ply`` file.
+        shape: the procedural shape.
+
+    Returns:
+        ``path`` as a Path.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     shape.mesh().export(str(path), file_type="ply", encoding="binary")
@@ -680,13 +724,22 @@ def write_shape_mesh(path: str | os.PathLike, shape) -> Path:
 
 def write_data_samples(out_dir: str | os.PathLike, n_per_category: int = 3, n_points: int = 2048,
                        seed: int = 0, figure: bool = True) -> list[Path]:
-    """Write the course's sample files: per category ``n_per_category`` shapes of distinct coarse
-    structures (the first ones of the collection ``seed`` with a structure not taken yet).
+    """Write the course's sample files (the committed ``data_samples/`` folder).
 
-    Writes ``meshes/<category>_<i>.ply`` (concatenated part meshes coloured by part),
-    ``points/<category>_<i>.ply`` (``n_points`` points with normals and labels), ``index.csv``
-    (file, category, collection index, structure, structure id, part names) and, with ``figure``,
-    ``samples.png`` (a part-coloured scatter of every sample). Returns the written paths.
+    Per category, the first shapes of collection ``seed`` whose coarse structure is not taken yet:
+    ``meshes/<category>_<i>.ply`` (:func:`write_shape_mesh`), ``points/<category>_<i>.ply`` (points with
+    normals and labels), then ``index.csv`` (files, category, collection index, structure, part names) and
+    ``samples.png`` (a part-coloured scatter of every sample).
+
+    Args:
+        out_dir: the folder to write.
+        n_per_category: shapes per category.
+        n_points: points per shape.
+        seed: the procedural collection.
+        figure: also write ``samples.png``.
+
+    Returns:
+        The paths written.
     """
     out = Path(out_dir)
     written, rows, chosen = [], [], []

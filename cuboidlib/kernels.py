@@ -1,29 +1,17 @@
-"""Optional compiled kernels for the CPU: the kNN selection and EdgeConv's per-edge loops.
+"""Compiled kernels for the CPU, used by default: the kNN selection and EdgeConv's per-edge loops.
 
-**COMPILED VERSION, opt-in.** ``kernels.cpp`` beside this file holds C++ versions of two hot spots
-of a CPU training step, each replacing a labelled piece of Python that stays the reference:
+``kernels.cpp`` beside this file holds C++ versions of three hot spots, each replacing a labelled piece of
+Python that stays the reference (``tests/test_kernels.py`` compares values and gradients):
 
-- ``smallest_k`` for the top-k selection in :func:`cuboidlib.neighbors.knn_indices` (``torch.topk``);
-- ``edge_mlp_forward`` / ``edge_mlp_backward`` for the chunk loops of ``_EdgeMLP`` in
-  :mod:`cuboidlib.model` (the gathers, LeakyReLU, max over neighbours, BatchNorm sums and scatters
-  around the matrix products, fused into single passes over memory; the backward pass needs two
-  products per chunk instead of three);
-- ``edge_stats`` for ``FastEdgeConv._edge_stats`` (the first BatchNorm's statistics, in float64
-  without float64 copies of the inputs).
+- ``smallest_k`` for the top-k selection in :func:`cuboidlib.neighbors.knn_indices`;
+- ``edge_mlp_forward`` / ``edge_mlp_backward`` for the chunk loops of :mod:`cuboidlib.edgeconv_fast`;
+- ``edge_stats`` for the first BatchNorm's statistics of ``FastEdgeConv``.
 
-They compute the same functions (``tests/test_kernels.py`` compares values and gradients with the
-Python versions and with the readable network in float64) and change only the speed:
-``python benchmarks/bench_model.py --variant fast compiled`` times both. Nothing uses them unless
-asked::
-
-    import cuboidlib.kernels
-    cuboidlib.kernels.enable()   # compiles on first use (about 30 s on 2 cores), then cached
-
-or ``cuboidlib train ... --compiled-kernels``. Compiling needs a C++ compiler and ``ninja`` (a
-dependency of cuboidlib); PyTorch caches the build under ``~/.cache/torch_extensions`` (or
-``$TORCH_EXTENSIONS_DIR``) and rebuilds it when the source changes. Where no compiler is found,
-:func:`enable` raises :class:`KernelsUnavailable` with the reason and everything keeps working without
-them. They run on CPU tensors only; on a GPU the PyTorch code runs as before.
+The first call of :func:`enabled` in a process decides: where a C++ compiler and ninja are found, the kernels
+are built on first use (once per machine, about a minute on 2 cores; PyTorch caches the build under
+``~/.cache/torch_extensions`` or ``$TORCH_EXTENSIONS_DIR``) and used for CPU tensors; otherwise one line on
+stderr says why and the PyTorch code runs. ``CUBOIDLIB_COMPILED_KERNELS=0`` (or :func:`disable`) turns them
+off; :func:`enable` asks for them and raises :class:`KernelsUnavailable` where they cannot be built.
 """
 
 from __future__ import annotations
@@ -34,7 +22,10 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-__all__ = ["KernelsUnavailable", "available", "enable", "disable", "enabled", "ops"]
+__all__ = ["KernelsUnavailable", "available", "enable", "disable", "enabled", "ops", "ENV"]
+
+#: The environment variable that turns the kernels off ("0", "off", "false" or "no").
+ENV = "CUBOIDLIB_COMPILED_KERNELS"
 
 _SOURCE = Path(__file__).with_name("kernels.cpp")
 _VECTOR_FLAGS = {  # by torch.backends.cpu.get_cpu_capability()
@@ -42,7 +33,7 @@ _VECTOR_FLAGS = {  # by torch.backends.cpu.get_cpu_capability()
     "AVX512": ["-mavx2", "-mfma", "-mavx512f", "-mavx512bw", "-mavx512vl", "-mavx512dq"],
 }
 _module: ModuleType | None = None
-_enabled = False
+_enabled: bool | None = None  # None: not decided yet in this process
 
 
 class KernelsUnavailable(RuntimeError):
@@ -86,6 +77,8 @@ def ops() -> ModuleType:
         if not is_ninja_available():
             raise KernelsUnavailable("ninja is not installed; `pip install ninja`, or run without the compiled kernels")
         name, flags = _build_flags()
+        if not _built(name):
+            print("cuboidlib: building the compiled kernels (once per machine, about a minute)", file=sys.stderr)
         try:
             _module = load(name, [str(_SOURCE)], extra_cflags=flags, verbose=False)
         except Exception as error:  # a compiler or linker failure: say so, then the Python code still works
@@ -93,19 +86,44 @@ def ops() -> ModuleType:
     return _module
 
 
+def _built(name: str) -> bool:
+    """Whether a build of ``name`` is already in PyTorch's extension cache (then loading takes a fraction of a second)."""
+    from torch.utils.cpp_extension import _get_build_directory  # noqa: PLC2701 (where load() looks)
+
+    try:
+        return (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").is_file()
+    except Exception:  # the cache folder cannot be made: load() will say so
+        return False
+
+
 def enable() -> None:
-    """Use the compiled kernels for CPU tensors from now on in this process (builds them if needed)."""
+    """Use the compiled kernels for CPU tensors from now on in this process (builds them if needed).
+
+    Raises:
+        KernelsUnavailable: no C++ compiler or ninja, or the build failed.
+    """
     global _enabled
     ops()
     _enabled = True
 
 
 def disable() -> None:
-    """Go back to the PyTorch code."""
+    """Use the PyTorch code from now on in this process."""
     global _enabled
     _enabled = False
 
 
 def enabled() -> bool:
-    """Whether :func:`enable` is in effect."""
+    """Whether the kernels are in use; the first call decides (see the module docstring)."""
+    global _enabled
+    if _enabled is None:
+        if os.environ.get(ENV, "").strip().lower() in ("0", "off", "false", "no"):
+            _enabled = False
+        else:
+            try:
+                enable()
+            except KernelsUnavailable as error:
+                print(f"cuboidlib: the compiled kernels are not used ({error}); the PyTorch code runs instead",
+                      file=sys.stderr)
+                _enabled = False
     return _enabled

@@ -32,6 +32,7 @@ __all__ = [
     "slot_consistency_loss",
     "LossConfig",
     "LossTerms",
+    "LOSS_TERMS",
     "total_loss",
 ]
 
@@ -44,7 +45,11 @@ __all__ = [
 def allocation_portions(W: torch.Tensor) -> torch.Tensor:
     """Portion of the points allocated to each cuboid, w_m = (1/N) sum_n W_{m,n} (Sec. 3.4.2).
 
-    W: (B, N, M) soft allocation (rows sum to 1). Returns w: (B, M), summing to 1 over M.
+    Args:
+        W: (B, N, M) soft allocation, each row summing to 1 over the M cuboids.
+
+    Returns:
+        (B, M) portions w, summing to 1 over M.
     """
     W = as_float_tensor(W, "W")
     if W.dim() != 3:
@@ -75,10 +80,14 @@ def _check_portions(w, name: str = "w") -> torch.Tensor:
 
 
 def reconstruction_loss(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    """Allocation-weighted point-to-cuboid distance, L_recons of Eq. (4), one value per shape.
+    """Allocation-weighted point-to-cuboid distance, L_recons of Eq. (4).
 
-    W: (B, N, M) allocation (rows sum to 1); d: (B, N, M) point-to-cuboid distances d(p_n, C_m).
-    Returns (B,): (1/N) sum_n sum_m W[b, n, m] d[b, n, m].
+    Args:
+        W: (B, N, M) allocation, each row summing to 1.
+        d: (B, N, M) point-to-cuboid distances d(p_n, C_m), e.g. those of Eq. (5).
+
+    Returns:
+        (B,) the loss of each shape, (1/N) sum_n sum_m W[b, n, m] d[b, n, m].
     """
     W = as_float_tensor(W, "W")
     d = as_float_tensor(d, "d")
@@ -88,29 +97,46 @@ def reconstruction_loss(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
         )
     if W.shape[1] == 0:
         raise ValueError("W has no points (N = 0); at least one point is needed")
+    return _reconstruction(W, d)
+
+
+def _reconstruction(W: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
     return (W * d).sum(dim=-1).mean(dim=-1)
 
 
 def nearest_cuboid_allocation(d: torch.Tensor) -> torch.Tensor:
-    """Hard allocation of every point to its closest cuboid, W_{m,n} = [m = argmin_k d(p_n, C_k)].
+    """Hard allocation to the closest cuboid, W_{m,n} = [m = argmin_k d(p_n, C_k)] (P2C-Dis, Table 3).
 
-    The P2C-Dis variant of Table 3, which removes the segmentation branch. d: (B, N, M) distances.
-    Returns (B, N, M) one-hot float (no gradient flows through the choice).
+    Args:
+        d: (B, N, M) point-to-cuboid distances.
+
+    Returns:
+        (B, N, M) one-hot, in d's dtype; no gradient flows through the choice.
     """
     d = as_float_tensor(d, "d")
     if d.dim() != 3:
         raise ValueError(f"d must have shape (B, N, M), got {tuple(d.shape)}")
+    return _nearest_cuboid(d)
+
+
+def _nearest_cuboid(d: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.one_hot(d.detach().argmin(dim=-1), d.shape[-1]).to(d.dtype)
 
 
 def allocation_weighted_centers(W: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Cuboid centres from the allocation, c_m = sum_n W_{m,n} p_n / (sum_n W_{m,n} + 1).
 
-    The authors' public code places every cuboid here in all losses instead of at its predicted
-    translation t_m (the paper uses t_m). The +1 keeps empty cuboids finite (pulled to the origin).
-    W: (B, N, M); points: (B, N, 3). Returns (B, M, 3).
+    The authors' public code uses these centres in every loss; the paper uses the predicted translation
+    t_m. The +1 keeps an empty cuboid finite (at the origin).
+
+    Args:
+        W: (B, N, M) allocation.
+        points: (B, N, 3).
+
+    Returns:
+        (B, M, 3) centres.
     """
-    return torch.einsum("bnm,bnc->bmc", W, points) / (W.sum(dim=1)[..., None] + 1)
+    return torch.einsum("bnm,bnc->bmc", W, points) / (W.sum(dim=1)[..., None] + 1)  # (B, M, 3) / (B, M, 1)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -127,27 +153,26 @@ def allocation_weighted_centers(W: torch.Tensor, points: torch.Tensor) -> torch.
 def compactness_loss(w: torch.Tensor, eps_sps: float = 0.01, average_over_cuboids: bool = False) -> torch.Tensor:
     """Cuboid compactness loss L_compact = (sum_m sqrt(w_m + eps_sps))^2, Eq. (6), Sec. 3.4.2.
 
-    This is the L0.5 penalty of the paper's Fig. 5 (the squared L0.5 "norm" of w, shifted by eps_sps).
-    It is concave in w, so on the simplex sum_m w_m = 1 its minima are the vertices: minimising it
-    drives the allocation towards few cuboids.
+    The L0.5 penalty of Fig. 5: concave in w, so its minima on the simplex are the vertices (few cuboids).
 
-    w: (..., M) allocation portions, non-negative (each row normally sums to 1; not checked, so the
-    penalty can also be evaluated off the simplex). Returns (...): one value per shape, e.g.
-    (B, M) -> (B,) and (M,) -> ().
+    Args:
+        w: (..., M) non-negative portions (rows normally sum to 1; not checked).
+        eps_sps: >= 0; keeps the gradient finite when a cuboid gets no points (paper: 0.01). With 0 it is
+            infinite at w_m = 0, and a softmax that underflows to 0 turns every logit's gradient into NaN.
+        average_over_cuboids: the authors' code's (mean_m sqrt(w_m + eps_sps))^2, Eq. (6) / M^2: the same
+            minimiser with an M^2 times smaller gradient, so their lambda_1 = 0.1 acts like 0.1 / M^2 here.
 
-    eps_sps >= 0 keeps the gradient finite when a cuboid gets no points (paper: 0.01):
-    d/dw_m L = S / sqrt(w_m + eps_sps) with S = sum_k sqrt(w_k + eps_sps), bounded by S / sqrt(eps_sps).
-    With eps_sps = 0 the gradient is infinite at w_m = 0 (and a softmax that underflows to an exact
-    0 then turns every logit's gradient into NaN).
-
-    average_over_cuboids=True gives the variant of the authors' public code, (mean_m sqrt(w_m + eps_sps))^2.
-    It equals the paper's value divided by M^2: same minimiser, but a gradient M^2 times smaller, so its
-    lambda_1 is M^2 times smaller in effect (for M = 16, the code's lambda_1 = 0.1 acts like 0.1 / 256 here).
+    Returns:
+        (...) one value per row: (B, M) -> (B,), (M,) -> ().
     """
     w = _check_portions(w)
     if eps_sps < 0:
         raise ValueError(f"eps_sps must be non-negative, got {eps_sps}")
-    roots = torch.sqrt(w + eps_sps)
+    return _compactness(w, eps_sps, average_over_cuboids)
+
+
+def _compactness(w: torch.Tensor, eps_sps: float, average_over_cuboids: bool) -> torch.Tensor:
+    roots = torch.sqrt(w + eps_sps)  # (..., M)
     total = roots.mean(dim=-1) if average_over_cuboids else roots.sum(dim=-1)
     return total**2
 
@@ -155,11 +180,13 @@ def compactness_loss(w: torch.Tensor, eps_sps: float = 0.01, average_over_cuboid
 def l1_penalty(w: torch.Tensor) -> torch.Tensor:
     """L1 norm of the portions, sum_m |w_m|: the penalty the paper rejects (Sec. 3.4.2, Fig. 5).
 
-    w: (..., M) non-negative allocation portions. Returns (...), e.g. (B, M) -> (B,), (M,) -> ().
-    On the simplex sum_m w_m = 1 it is identically 1. With w = softmax(z) its gradient with respect to
-    the logits is J^T 1 = w * (1 - sum_m w_m) = 0 (J = diag(w) - w w^T is the softmax Jacobian), so it
-    cannot change the allocation; numerically the gradient is at rounding level, since sum_m w_m is 1
-    only up to float rounding.
+    On the simplex it is identically 1: its gradient through a softmax is zero up to float rounding.
+
+    Args:
+        w: (..., M) non-negative portions.
+
+    Returns:
+        (...) one value per row: (B, M) -> (B,), (M,) -> ().
     """
     w = _check_portions(w)
     return w.abs().sum(dim=-1)
@@ -168,10 +195,13 @@ def l1_penalty(w: torch.Tensor) -> torch.Tensor:
 def l2_penalty(w: torch.Tensor) -> torch.Tensor:
     """Squared L2 norm of the portions, sum_m w_m^2: a comparison penalty of Sec. 3.4.2 and Fig. 5.
 
-    w: (..., M) non-negative allocation portions. Returns (...), e.g. (B, M) -> (B,), (M,) -> ().
-    It is convex; on the simplex its minimum is 1/M, at the uniform portions w_m = 1/M, so minimising it
-    spreads the points over all cuboids (the opposite of compactness). Squaring the norm keeps the same
-    minimiser and a smooth gradient 2 w.
+    Convex, smallest at the uniform w_m = 1/M: it spreads the points over all cuboids.
+
+    Args:
+        w: (..., M) non-negative portions.
+
+    Returns:
+        (...) one value per row: (B, M) -> (B,), (M,) -> ().
     """
     w = _check_portions(w)
     return (w * w).sum(dim=-1)
@@ -187,28 +217,41 @@ def l2_penalty(w: torch.Tensor) -> torch.Tensor:
 
 def existence_targets(w: torch.Tensor, eps_ext: float = 0.05, min_points: float | None = None,
                       num_points: int | None = None) -> torch.Tensor:
-    """Existence ground truth delta^gt_m = [w_m > eps_ext] (Sec. 3.4.3), detached, as floats in {0, 1}.
+    """Existence ground truth delta^gt_m = [w_m > eps_ext] (Sec. 3.4.3), detached.
 
-    w: (..., M) allocation portions. Returns (..., M). The paper thresholds the portion (eps_ext = 0.05);
-    the authors' public code thresholds the number of points instead, N w_m > min_points (24): pass
-    ``min_points`` together with ``num_points`` = N for that variant.
+    Args:
+        w: (..., M) portions.
+        eps_ext: threshold on the portion, in [0, 1) (paper: 0.05).
+        min_points: None, or the authors' code's threshold on the number of points instead,
+            N w_m > min_points (code: 24).
+        num_points: N, the points per shape; needed with ``min_points``.
+
+    Returns:
+        (..., M) floats in {0, 1}, in w's dtype.
     """
     w = _check_portions(w)
-    if min_points is None:
-        if not 0 <= eps_ext < 1:
-            raise ValueError(f"eps_ext must lie in [0, 1), got {eps_ext}")
-        return (w.detach() > eps_ext).to(w.dtype)
-    if num_points is None or num_points < 1:
+    if min_points is None and not 0 <= eps_ext < 1:
+        raise ValueError(f"eps_ext must lie in [0, 1), got {eps_ext}")
+    if min_points is not None and (num_points is None or num_points < 1):
         raise ValueError("min_points needs num_points, the number N of points per shape")
+    return _existence_targets(w, eps_ext, min_points, num_points)
+
+
+def _existence_targets(w: torch.Tensor, eps_ext: float, min_points: float | None, num_points: int | None):
+    if min_points is None:
+        return (w.detach() > eps_ext).to(w.dtype)
     return (w.detach() * num_points > min_points).to(w.dtype)
 
 
 def existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
-    """Binary cross-entropy between predicted existence and its targets, L_exist of Eq. (7).
+    """Binary cross-entropy of the predicted existence and its targets, L_exist of Eq. (7).
 
-    exist_logits: (B, M) logits of delta_m (delta_m = sigmoid(logit)); targets: (B, M) in {0, 1}.
-    Returns (B,): -(1/M) sum_m [t log delta_m + (1 - t) log(1 - delta_m)], computed from the logits
-    for numerical stability (the same value as Eq. (7) on probabilities).
+    Args:
+        exist_logits: (B, M) logits, delta_m = sigmoid(logit).
+        targets: (B, M) in {0, 1}, e.g. from :func:`existence_targets`.
+
+    Returns:
+        (B,) -(1/M) sum_m [t log delta_m + (1 - t) log(1 - delta_m)], computed from the logits for stability.
     """
     exist_logits = as_float_tensor(exist_logits, "exist_logits")
     targets = as_float_tensor(targets, "targets").to(exist_logits)
@@ -217,7 +260,11 @@ def existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.T
             f"exist_logits and targets must both have shape (B, M); got {tuple(exist_logits.shape)} "
             f"and {tuple(targets.shape)}"
         )
-    bce = torch.nn.functional.binary_cross_entropy_with_logits(exist_logits, targets, reduction="none")
+    return _existence_loss(exist_logits, targets)
+
+
+def _existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(exist_logits, targets, reduction="none")  # (B, M)
     return bce.mean(dim=-1)
 
 
@@ -227,15 +274,22 @@ def existence_loss(exist_logits: torch.Tensor, targets: torch.Tensor) -> torch.T
 
 
 def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
-    """KL(N(mu, diag(exp(logvar))) || N(0, I)), L_KL-div of Eq. (8), one value per shape.
+    """KL(N(mu, diag(exp(logvar))) || N(0, I)), L_KL-div of Eq. (8).
 
-    mu, logvar: (B, K) mean and log-variance of the latent code (the paper writes sigma_k for the
-    log-variance). Returns (B,): (1/2) sum_k [exp(logvar_k) - (1 + logvar_k) + mu_k^2].
+    Args:
+        mu, logvar: (B, K) mean and log-variance of the latent code (the paper's sigma_k is the log-variance).
+
+    Returns:
+        (B,) (1/2) sum_k [exp(logvar_k) - (1 + logvar_k) + mu_k^2].
     """
     mu = as_float_tensor(mu, "mu")
     logvar = as_float_tensor(logvar, "logvar").to(mu)
     if mu.dim() != 2 or mu.shape != logvar.shape:
         raise ValueError(f"mu and logvar must both have shape (B, K); got {tuple(mu.shape)} and {tuple(logvar.shape)}")
+    return _kl_divergence(mu, logvar)
+
+
+def _kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
     return 0.5 * (logvar.exp() - (1 + logvar) + mu.square()).sum(dim=-1)
 
 
@@ -249,12 +303,18 @@ def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
 
 
 def slot_consistency_loss(centers: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """Portion-weighted spread of every slot's centre over the batch, averaged over the slots (a scalar).
+    """Portion-weighted spread of every slot's centre over the batch, averaged over the slots.
 
-    centers: (B, M, 3) cuboid centres c_bm; w: (B, M) allocation portions. With the weighted mean centre
-    mu_m = sum_b w_bm c_bm / sum_b w_bm, the value is mean_m [sum_b w_bm |c_bm - mu_m|^2 / sum_b w_bm].
-    A shape whose slot m lies far from where the other shapes put it lowers the loss by handing the
-    slot's points to another slot. Example::
+    With mu_m = sum_b w_bm c_bm / sum_b w_bm: mean_m [sum_b w_bm |c_bm - mu_m|^2 / sum_b w_bm].
+
+    Args:
+        centers: (B, M, 3) cuboid centres c_bm.
+        w: (B, M) allocation portions.
+
+    Returns:
+        () a scalar.
+
+    Example::
 
         >>> c = torch.tensor([[[0.0, 0, 0]], [[0.2, 0, 0]]]); w = torch.tensor([[0.5], [0.5]])
         >>> slot_consistency_loss(c, w)
@@ -265,9 +325,13 @@ def slot_consistency_loss(centers: torch.Tensor, w: torch.Tensor) -> torch.Tenso
     if centers.dim() != 3 or centers.shape[-1] != 3 or centers.shape[:2] != w.shape:
         raise ValueError(f"centers must have shape (B, M, 3) and w (B, M); "
                          f"got {tuple(centers.shape)} and {tuple(w.shape)}")
+    return _slot_consistency(centers, w)
+
+
+def _slot_consistency(centers: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     mass = w.sum(dim=0) + 1e-6  # (M,)
     mean = (w[..., None] * centers).sum(dim=0) / mass[:, None]  # (M, 3)
-    spread = (w * (centers - mean).square().sum(dim=-1)).sum(dim=0) / mass
+    spread = (w * (centers - mean).square().sum(dim=-1)).sum(dim=0) / mass  # (M,)
     return spread.mean()
 
 
@@ -283,22 +347,26 @@ ALLOCATIONS = ("segmentation", "nearest_cuboid")
 class LossConfig(ConfigDict):
     """Weights and choices of the total loss L = L_recons + l1 L_compact + l2 L_exist + l3 L_KL (Eq. 9).
 
-    Paper defaults: lambda_compact (lambda_1) = 0.1, lambda_exist (lambda_2) = 0.01, lambda_kl
-    (lambda_3) = 6e-6, sigma_s = 0.05, eps_sps = 0.01, eps_ext = 0.05.
+    The defaults are the paper's; the ablations are those of Sec. 4.3.
 
-    Ablations (Sec. 4.3):
-      distance: "normal" (Eq. 5, default), "nearest_surface" (Table 4's "Distance" column) or
-        "chamfer" (Chamfer-Dis of Table 3: bidirectional Chamfer between the points and samples on
-        the cuboids as L_recons, with the hard nearest-cuboid allocation for the other terms);
-      allocation: "segmentation" (W from the network, P2C-Seg, default) or "nearest_cuboid"
-        (P2C-Dis: W = one-hot of the closest cuboid under the chosen distance).
-    The authors' public code (off by default, see official-code notes):
-      centers_from_allocation: use c_m = sum_n W p_n / (sum_n W + 1) as cuboid centres in every loss;
-      compactness_average: (mean_m sqrt(w_m + eps))^2 instead of the sum (= paper / M^2);
-      existence_min_points: existence target N w_m > this many points (code: 24) instead of eps_ext.
-    A course option, in neither the paper nor the code (off by default):
-      lambda_consistency: weight of :func:`slot_consistency_loss`, the portion-weighted spread of each cuboid
-        slot's centre over the shapes of a batch, added to Eq. (9), so that a slot keeps one role in every shape.
+    Args:
+        lambda_compact, lambda_exist, lambda_kl: lambda_1, lambda_2, lambda_3 of Eq. (9) (0.1, 0.01, 6e-6).
+        sigma_s: range of the offsets along the normals, Eq. (5) (0.05).
+        eps_sps: shift under the square roots of Eq. (6) (0.01).
+        eps_ext: portion above which a cuboid's existence target is 1, Sec. 3.4.3 (0.05).
+        distance: "normal" (Eq. 5), "nearest_surface" (Table 4's "Distance" column) or "chamfer"
+            (Chamfer-Dis of Table 3: bidirectional Chamfer to samples on the cuboids as L_recons, with the
+            hard nearest-cuboid allocation for the other terms).
+        allocation: "segmentation" (the network's W, P2C-Seg) or "nearest_cuboid" (P2C-Dis: one-hot of the
+            closest cuboid under ``distance``).
+        chamfer_samples: points sampled on the cuboids for distance="chamfer" (None: N).
+        centers_from_allocation: the authors' code: cuboid centres :func:`allocation_weighted_centers` in
+            every loss.
+        compactness_average: the authors' code: (mean_m sqrt(w_m + eps_sps))^2, Eq. (6) / M^2.
+        existence_min_points: the authors' code: existence target N w_m > this many points (code: 24)
+            instead of eps_ext.
+        lambda_consistency: weight of :func:`slot_consistency_loss` added to Eq. (9), so that a slot keeps
+            one role in every shape (a course option; 0 is off).
     """
 
     lambda_compact: float = 0.1
@@ -333,39 +401,74 @@ class LossConfig(ConfigDict):
                       **overrides})
 
 
+#: The scalar terms of :class:`LossTerms`, in log-file order: Eq. (9)'s total and its four terms, then the
+#: course's slot consistency (measured at every step, added to the total only when its weight is positive).
+LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl", "consistency")
+
+
 @dataclass
 class LossTerms:
-    """The total loss and its terms, each averaged over the batch (scalars), plus W and w used."""
+    """The total loss and its terms, each averaged over the batch, and the W and w they used.
+
+    Attributes:
+        total, reconstruction, compactness, existence, kl: () Eq. (9) and its four terms.
+        consistency: () :func:`slot_consistency_loss`, detached when its weight is 0.
+        W: (B, N, M) the allocation used (one-hot for "nearest_cuboid" or "chamfer").
+        portions: (B, M) the portions w.
+    """
 
     total: torch.Tensor
     reconstruction: torch.Tensor
     compactness: torch.Tensor
     existence: torch.Tensor
     kl: torch.Tensor
+    consistency: torch.Tensor
     W: torch.Tensor
     portions: torch.Tensor
 
     def as_floats(self) -> dict[str, float]:
-        """The five scalar terms as plain floats (for logs and progress bars)."""
-        return {k: getattr(self, k).detach().item() for k in ("total", "reconstruction", "compactness", "existence", "kl")}
+        """The :data:`LOSS_TERMS` as plain floats (for logs and progress bars)."""
+        return {k: getattr(self, k).detach().item() for k in LOSS_TERMS}
+
+
+def _checked_output(output, points: torch.Tensor) -> torch.Tensor:
+    """Check the shapes total_loss relies on, once; returns W (B, N, M)."""
+    W = as_float_tensor(output.W, "W")
+    if W.dim() != 3 or W.shape[1] == 0:
+        raise ValueError(f"output.W must have shape (B, N, M) with N >= 1, got {tuple(W.shape)}")
+    B, N, M = W.shape
+    if tuple(points.shape) != (B, N, 3):
+        raise ValueError(f"points must have shape (B, N, 3) = {(B, N, 3)} to match output.W, got {tuple(points.shape)}")
+    if tuple(output.exist_logits.shape) != (B, M):
+        raise ValueError(f"output.exist_logits must have shape (B, M) = {(B, M)}, got {tuple(output.exist_logits.shape)}")
+    if output.mu.dim() != 2 or output.mu.shape != output.logvar.shape or output.mu.shape[0] != B:
+        raise ValueError(f"output.mu and output.logvar must both have shape (B, K); got {tuple(output.mu.shape)} "
+                         f"and {tuple(output.logvar.shape)}")
+    return W
 
 
 def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: LossConfig = LossConfig(),
                generator: torch.Generator | None = None) -> LossTerms:
     """L = L_recons + lambda_1 L_compact + lambda_2 L_exist + lambda_3 L_KL-div (Eq. 9), batch-averaged.
 
-    output: the network's prediction (attributes centers, quaternions, half_sizes (B, M, ...),
-    exist_logits (B, M), W (B, N, M), mu, logvar (B, K)), e.g. cuboidlib.model.ModelOutput;
-    points, normals: (B, N, 3) the input shapes with unit normals. ``generator`` drives the sampling
-    along the normals (Eq. 5) and, for distance="chamfer", on the cuboids.
+    Args:
+        output: the network's prediction, e.g. :class:`cuboidlib.model.ModelOutput`: centers (B, M, 3),
+            quaternions (B, M, 4), half_sizes (B, M, 3), exist_logits (B, M), W (B, N, M), mu and logvar (B, K).
+        points, normals: (B, N, 3) the input shapes, unit normals.
+        config: the loss settings (default: the paper's).
+        generator: source of the offsets along the normals (Eq. 5) and, for distance="chamfer", of the
+            samples on the cuboids (None: torch's global one).
+
+    Returns:
+        :class:`LossTerms`.
     """
     c = config
-    W = output.W
+    W = _checked_output(output, points)
     centers = allocation_weighted_centers(W, points) if c.centers_from_allocation else output.centers
     cuboids = (centers, output.quaternions, output.half_sizes)
     if c.distance == "chamfer":
         d = nearest_surface_distance(points, *cuboids)
-        W = nearest_cuboid_allocation(d)
+        W = _nearest_cuboid(d)
         samples = c.chamfer_samples or points.shape[1]
         recons = chamfer_distance_to_cuboids(points, *cuboids, n_samples=samples, generator=generator)
     else:
@@ -374,19 +477,21 @@ def total_loss(output, points: torch.Tensor, normals: torch.Tensor, config: Loss
         else:
             d = nearest_surface_distance(points, *cuboids)
         if c.allocation == "nearest_cuboid":
-            W = nearest_cuboid_allocation(d)
-        recons = reconstruction_loss(W, d)
-    w = allocation_portions(W)
-    compact = compactness_loss(w, c.eps_sps, average_over_cuboids=c.compactness_average)
-    targets = existence_targets(w, c.eps_ext, c.existence_min_points, points.shape[1])
-    exist = existence_loss(output.exist_logits, targets)
-    kl = kl_divergence(output.mu, output.logvar)
+            W = _nearest_cuboid(d)
+        recons = _reconstruction(W, d)
+    w = W.mean(dim=1)  # (B, M) portions, Sec. 3.4.2
+    compact = _compactness(w, c.eps_sps, c.compactness_average)
+    targets = _existence_targets(w, c.eps_ext, c.existence_min_points, points.shape[1])
+    exist = _existence_loss(output.exist_logits, targets)
+    kl = _kl_divergence(output.mu, output.logvar)
     recons, compact, exist, kl = recons.mean(), compact.mean(), exist.mean(), kl.mean()
     total = recons + c.lambda_compact * compact + c.lambda_exist * exist + c.lambda_kl * kl
+    consistency = _slot_consistency(centers, w)
     if c.lambda_consistency > 0:
-        total = total + c.lambda_consistency * slot_consistency_loss(centers, w)
+        total = total + c.lambda_consistency * consistency
     if c.centers_from_allocation:
         # No term uses the predicted translation; keep it in the graph with weight 0 so that every parameter
         # gets a (zero) gradient, as DistributedDataParallel requires. The value of the loss is unchanged.
         total = total + 0.0 * output.centers.sum()
-    return LossTerms(total, recons, compact, exist, kl, W, w)
+    return LossTerms(total, recons, compact, exist, kl, consistency.detach() if c.lambda_consistency == 0 else
+                     consistency, W, w)

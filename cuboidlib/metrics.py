@@ -1,24 +1,10 @@
 """Evaluation metrics (Sec. 4.1-4.3): Chamfer distance, normal consistency, mIoU by label transfer, N_AC.
 
-The authors published no evaluation code, and papers in this field report the Chamfer distance in
-incompatible ways, so every choice is explicit here:
-
-- :class:`ChamferConvention` says how a Chamfer distance is computed and :meth:`ChamferConvention.describe`
-  is printed beside every number the course reports. The default is the paper's "symmetric L2 CD
-  on 4096 points": SQUARED Euclidean distances, MEAN over the points of each direction, SUM of the
-  two directions, times ``scale``.
-- :func:`cuboid_chamfer_distance` compares the input points with points sampled uniformly by area
-  on the existing cuboids.
-- :func:`normal_consistency` compares the input normals with the normals of the nearest cuboid
-  surface samples.
-- :func:`transfer_part_labels` and :func:`mean_iou` implement the paper's label transfer (Sec. 4.2):
-  each cuboid index gets the semantic part label that most of its points carry on a labelled subset
-  of shapes, and those labels score the segmentation of the test shapes; :func:`part_ious` gives the
-  IoU of every part label behind the mean, and :func:`part_confusion` where each part's points went.
-- :func:`segment_box_distance` measures whether segmentation and abstraction agree: how far the
-  points of each segment lie outside the cuboid that stands for them.
-- :func:`reassigned_fraction` measures whether allocation and existence agree: the share of points
-  whose most allocated cuboid does not exist, so that the segmentation moves them to another one.
+The authors published no evaluation code and papers report the Chamfer distance in incompatible ways,
+so every choice is explicit: a :class:`ChamferConvention` says how a Chamfer distance is computed, and
+its :meth:`~ChamferConvention.describe` is printed beside every number. :func:`segment_box_distance`
+(do segmentation and abstraction agree?) and :func:`reassigned_fraction` (do allocation and existence
+agree?) are the course's measures, not the paper's.
 
 Shapes: points and normals (B, N, 3); cuboids as in :mod:`cuboidlib.geometry`; segmentations and
 part labels (S, N) integer tensors.
@@ -54,15 +40,14 @@ _NORMS = ("squared_l2", "l2", "l1")
 
 @dataclass(frozen=True)
 class ChamferConvention:
-    """How a Chamfer distance is computed and reported.
+    """How a Chamfer distance is computed and reported; the defaults read the paper's "symmetric L2 CD".
 
-    norm: the distance between a point and its nearest neighbour (the neighbour is always found in
-      Euclidean distance): "squared_l2" |a - b|^2 (the paper's "L2 CD", default), "l2" |a - b| (what
-      point-completion papers call "L1-CD"), or "l1" |a - b|_1 (sum of absolute coordinate
-      differences).
-    directions: "sum" (default) or "mean" of the two one-directional averages.
-    scale: factor applied to the result (papers often report x100 or x1000).
-    n_samples: points sampled on the cuboid surfaces (the paper: 4096).
+    Args:
+        norm: distance of a point to its nearest neighbour (found in Euclidean distance): "squared_l2"
+            |a - b|^2 (the paper's "L2 CD"), "l2" |a - b| (point-completion papers' "L1-CD") or "l1" |a - b|_1.
+        directions: "sum" or "mean" of the two one-directional means.
+        scale: factor on the result (papers often report x100 or x1000).
+        n_samples: points sampled on the cuboid surfaces (paper: 4096).
     """
 
     norm: str = "squared_l2"
@@ -90,7 +75,14 @@ class ChamferConvention:
         )
 
     def pair_distance(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """Distance between matched points a (..., 3) and b (..., 3) under this convention's norm."""
+        """Distance between matched points under this convention's norm.
+
+        Args:
+            a, b: (..., 3) matched points.
+
+        Returns:
+            (...) distances.
+        """
         diff = a - b
         if self.norm == "squared_l2":
             return diff.square().sum(dim=-1)
@@ -121,23 +113,28 @@ def cuboid_chamfer_distance(
     convention: ChamferConvention = ChamferConvention(),
     generator: torch.Generator | None = None,
 ) -> torch.Tensor:
-    """Chamfer distance between input points and the surfaces of the existing cuboids (Table 1).
+    """Chamfer distance between the points and the surfaces of the existing cuboids (Table 1).
 
-    points (B, N, 3); centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3); exists:
-    optional (B, M) bool mask. ``convention.n_samples`` points are sampled uniformly by area on the
-    existing cuboids (randomness from ``generator``), then
+    CD = scale * [mean_i d(a_i, NN_b(a_i)) + mean_j d(b_j, NN_a(b_j))], halved for directions="mean":
+    a are the points, b ``convention.n_samples`` samples uniform by area on the existing cuboids, d the
+    convention's norm.
 
-        CD = scale * [ mean_i d(a_i, NN_b(a_i)) (+ or mean with) mean_j d(b_j, NN_a(b_j)) ]
+    Args:
+        points: (B, N, 3).
+        centers, quaternions, half_sizes: (B, M, 3), (B, M, 4) unit (w, x, y, z), (B, M, 3).
+        exists: (B, M) bool, or None (every cuboid exists).
+        convention: how the distance is computed and scaled (default: the paper's).
+        generator: source of the surface samples (None: torch's global one).
 
-    with d and the combination given by ``convention`` (:meth:`ChamferConvention.describe`).
-    Returns (B,).
+    Returns:
+        (B,) distances.
     """
     points = as_float_tensor(points, "points")
     check_shape(points, ("B", "N", 3), "points")
     samples = _sample_cuboids(points, centers, quaternions, half_sizes, exists, convention.n_samples, generator)
     to_cuboids, to_points = nearest_indices(points, samples.points)  # both directions in one pass
-    forward = convention.pair_distance(points, _gather(samples.points, to_cuboids)).mean(dim=1)
-    backward = convention.pair_distance(samples.points, _gather(points, to_points)).mean(dim=1)
+    forward = convention.pair_distance(points, _gather(samples.points, to_cuboids)).mean(dim=1)  # (B,)
+    backward = convention.pair_distance(samples.points, _gather(points, to_points)).mean(dim=1)  # (B,)
     total = forward + backward
     if convention.directions == "mean":
         total = total / 2
@@ -155,23 +152,24 @@ def normal_consistency(
     generator: torch.Generator | None = None,
     directions: str = "points",
 ) -> torch.Tensor:
-    """Normal consistency between a point cloud and cuboids (Table 4): mean_n |n_n . n(q_n)|.
+    """Normal consistency of a point cloud and cuboids (Table 4), mean_n |n_n . n(q_n)|.
 
-    points, normals (B, N, 3); cuboids (B, M, ...), exists optional (B, M). For each input point,
-    q_n is the nearest of ``n_samples`` points sampled uniformly on the existing cuboids' surfaces
-    and n(q_n) the outward normal of the face it lies on. The absolute value makes the measure
-    independent of how the input normals are oriented. 1 is perfect, about 0.5 is what random
-    directions give. Returns (B,).
+    q_n is the nearest to p_n of ``n_samples`` points sampled uniformly on the existing cuboids, n(q_n)
+    the outward normal of its face. The absolute value ignores how the input normals are oriented;
+    1 is perfect, random directions give about 0.5.
 
-    directions: "points" (the formula above: every input point looks for the cuboids) or "both":
-    the mean of that and of the other direction, where every surface sample s looks for its nearest
-    input point p(s), mean_s |n(s) . n_p(s)| (the usual definition for reconstructions). Only
-    "both" sees cuboid faces that no input point is near, such as the inner faces of thin slabs
-    stacked inside a shape (Fig. 9), which looking from the points alone never reaches.
+    Args:
+        points, normals: (B, N, 3); normals non-zero (normalised here).
+        centers, quaternions, half_sizes, exists: the cuboids, as in :func:`cuboid_chamfer_distance`.
+        n_samples: points sampled on the cuboids.
+        generator: source of the surface samples (None: torch's global one).
+        directions: "points" (the formula above) or "both": its mean with the other direction,
+            mean_s |n(s) . n_p(s)| over the samples s and their nearest input points p(s). Only "both" sees
+            cuboid faces that no input point is near, such as the inner faces of stacked slabs (Fig. 9;
+            tests/test_metrics.py).
 
-    Example (tests/test_metrics.py): 4000 points on a unit cube's surface against the cube itself give
-    0.97 both ways; against four slabs of height 1/4 stacked to fill the cube, 0.91 from the points
-    but 0.74 both ways, because nothing near the slabs' inner faces has a vertical normal.
+    Returns:
+        (B,) values in [0, 1].
     """
     if directions not in ("points", "both"):
         raise ValueError(f"directions must be 'points' or 'both', got {directions!r}")
@@ -182,9 +180,16 @@ def normal_consistency(
 
 def normal_consistency_terms(points, normals, centers, quaternions, half_sizes, exists=None, n_samples: int = 4096,
                              generator: torch.Generator | None = None, both: bool = True):
-    """The two directions of :func:`normal_consistency` on the same surface samples, (B,) each:
-    (from the points, from the cuboids); the second is None when ``both`` is False. One search for the
-    nearest neighbours serves both, so asking for both costs about as much as asking for one."""
+    """Both directions of :func:`normal_consistency`, from one nearest-neighbour search on the same samples.
+
+    Args:
+        points, normals, centers, quaternions, half_sizes, exists, n_samples, generator: as in
+            :func:`normal_consistency`.
+        both: also compute the direction from the cuboids.
+
+    Returns:
+        (from_points, from_cuboids): (B,) each; from_cuboids is None unless ``both``.
+    """
     points = as_float_tensor(points, "points")
     normals = as_float_tensor(normals, "normals").to(points)
     check_shape(points, ("B", "N", 3), "points")
@@ -201,14 +206,21 @@ def normal_consistency_terms(points, normals, centers, quaternions, half_sizes, 
     else:
         nearest, back = nearest_index(points, samples.points), None
     unit = normals / length[..., None]
-    from_points = (unit * _gather(samples.normals, nearest)).sum(dim=-1).abs().mean(dim=1)
+    from_points = (unit * _gather(samples.normals, nearest)).sum(dim=-1).abs().mean(dim=1)  # (B,)
     if back is None:
         return from_points, None
     return from_points, (samples.normals * _gather(unit, back)).sum(dim=-1).abs().mean(dim=1)
 
 
 def number_of_existing_cuboids(exists) -> torch.Tensor:
-    """N_AC of Tables 5-6: the average number of existing cuboids over shapes. exists: (B, M) bool."""
+    """N_AC of Tables 5-6: the number of existing cuboids, averaged over the shapes.
+
+    Args:
+        exists: (B, M) bool.
+
+    Returns:
+        () float64.
+    """
     exists = torch.as_tensor(exists)
     if exists.dim() != 2:
         raise ValueError(f"exists must have shape (B, M), got {tuple(exists.shape)}")
@@ -225,12 +237,19 @@ def _check_labels(x, name: str) -> torch.Tensor:
 
 
 def transfer_part_labels(segmentation, part_labels, num_cuboids: int, num_parts: int) -> torch.Tensor:
-    """Give every cuboid index the semantic part that most of its points carry (Sec. 4.2).
+    """The part of every cuboid index: the part most of its points carry on labelled shapes (Sec. 4.2).
 
-    segmentation (S, N): cuboid index of every point (argmax of W) on the labelled shapes (the
-    paper uses a random 20 % of the data); part_labels (S, N): their ground-truth part indices.
-    Returns (num_cuboids,) long: the part label of each cuboid index, or -1 for a cuboid index that
-    received no point (its points, if a test shape ever has any, count as wrong).
+    The paper labels with a random 20 % of the data.
+
+    Args:
+        segmentation: (S, N) int, each point's cuboid index (argmax of W) on the labelled shapes.
+        part_labels: (S, N) int, their ground-truth parts.
+        num_cuboids: M; the segmentation lies in [0, M).
+        num_parts: the part labels lie in [0, num_parts).
+
+    Returns:
+        (num_cuboids,) int64, each cuboid index's part; -1 for an index that got no point (its points in a
+        scored shape then count as wrong).
     """
     seg = _check_labels(segmentation, "segmentation")
     gt = _check_labels(part_labels, "part_labels")
@@ -270,25 +289,29 @@ def _intersections_and_unions(predicted_parts, part_labels, num_parts: int) -> t
 
 
 def part_ious(predicted_parts, part_labels, num_parts: int) -> torch.Tensor:
-    """Per-label intersection over union of a part segmentation, counted over all points (Sec. 4.2).
+    """Per-label intersection over union of a part segmentation, over all points of all shapes (Sec. 4.2).
 
-    predicted_parts, part_labels: (S, N) part indices (predicted_parts may hold -1 = no label).
-    Returns (num_parts,) float64: for label l, |pred = l and gt = l| / |pred = l or gt = l| over all
-    points of all shapes; NaN for a label that occurs in neither. Example: a cuboid-to-part map that
-    gives no cuboid the label "arm" leaves IoU 0 for "arm" wherever arms exist.
+    Args:
+        predicted_parts: (S, N) int part indices; -1 is no label.
+        part_labels: (S, N) int ground truth in [0, num_parts).
+        num_parts: the number of part labels.
+
+    Returns:
+        (num_parts,) float64, |pred = l and gt = l| / |pred = l or gt = l|; NaN for a label in neither.
     """
     inter, union = (x.sum(dim=0) for x in _intersections_and_unions(predicted_parts, part_labels, num_parts))
     return torch.where(union > 0, inter / union.clamp_min(1), torch.full_like(union, math.nan))
 
 
 def part_confusion(predicted_parts, part_labels, num_parts: int) -> torch.Tensor:
-    """Where the points of every part went: a confusion matrix of a part segmentation.
+    """Confusion matrix of a part segmentation: where the points of every true part went.
 
-    predicted_parts, part_labels: (S, N) part indices (predicted_parts may hold -1 = no label, not counted).
-    Returns (num_parts, num_parts) int64: entry [t, p] counts the points of true part t labelled p, over all
-    shapes. The diagonal is the intersection of :func:`part_ious`; an off-diagonal entry shows which part
-    takes a part's points. Example: armrest cuboids that carry a leg in armless chairs give a large
-    [leg, arm] entry.
+    Args:
+        predicted_parts, part_labels, num_parts: as in :func:`part_ious`; points labelled -1 are not counted.
+
+    Returns:
+        (num_parts, num_parts) int64: [t, p] counts the points of true part t labelled p, over all shapes;
+        the diagonal is the intersection of :func:`part_ious`.
     """
     _intersections_and_unions(predicted_parts, part_labels, num_parts)  # the same checks
     pred, gt = torch.as_tensor(predicted_parts).long(), torch.as_tensor(part_labels).long()
@@ -299,11 +322,14 @@ def part_confusion(predicted_parts, part_labels, num_parts: int) -> torch.Tensor
 def mean_iou(predicted_parts, part_labels, num_parts: int, per_shape: bool = False) -> float:
     """Mean per-label intersection over union of a part segmentation (Sec. 4.2).
 
-    predicted_parts, part_labels: (S, N) part indices (predicted_parts may hold -1 = no label).
-    Default: for every part label, IoU = |pred = l and gt = l| / |pred = l or gt = l| counted over
-    all points of all shapes (:func:`part_ious`), then the mean over the labels that occur (in pred
-    or gt). ``per_shape=True`` gives the ShapeNet-part variant: the mean over labels for each shape
-    (a label absent from both prediction and ground truth counts as IoU 1), then the mean over shapes.
+    Args:
+        predicted_parts, part_labels, num_parts: as in :func:`part_ious`.
+        per_shape: False: :func:`part_ious` over all points, averaged over the labels that occur (in
+            prediction or ground truth). True: the ShapeNet-part variant, the mean over the labels of each
+            shape (a label absent from both counts as 1), then over the shapes.
+
+    Returns:
+        The mean IoU, a float in [0, 1].
     """
     if not per_shape:
         iou = part_ious(predicted_parts, part_labels, num_parts)
@@ -313,15 +339,18 @@ def mean_iou(predicted_parts, part_labels, num_parts: int, per_shape: bool = Fal
 
 
 def segment_box_distance(points, segmentation, centers, quaternions, half_sizes) -> torch.Tensor:
-    """How well segmentation and abstraction agree: mean distance of a point to the solid box of its cuboid.
+    """Agreement of segmentation and abstraction: mean distance of a point to the solid box of its cuboid.
 
-    points (B, N, 3); segmentation (B, N) int64, the cuboid index of every point (argmax of W,
-    Sec. 3.3); centers (B, M, 3), quaternions (B, M, 4), half_sizes (B, M, 3). With l = R^T (p - c)
-    the point in the frame of its cuboid, the distance is |max(|l| - h, 0)| (0 inside the box).
-    Returns (B,): the mean over the points. On a shape normalised to diagonal 1, 0.01 means that
-    the points of a segment lie on average 1 % of the shape's size outside the box that stands for it.
-    Example: a segment holding all four legs of a chair and a box around one leg gives about the
-    leg spacing, 0.3-0.5.
+    With l = R^T (p - c) the point in its cuboid's frame, the distance is |max(|l| - h, 0)|, 0 inside the box.
+    On a shape of diagonal 1, 0.01 means the segments lie 1 % of the shape's size outside their boxes.
+
+    Args:
+        points: (B, N, 3).
+        segmentation: (B, N) int, each point's cuboid index (argmax of W, Sec. 3.3).
+        centers, quaternions, half_sizes: (B, M, 3), (B, M, 4), (B, M, 3).
+
+    Returns:
+        (B,) the mean over the points.
     """
     points = as_float_tensor(points, "points")
     sizes = check_shape(points, ("B", "N", 3), "points")
@@ -338,22 +367,24 @@ def segment_box_distance(points, segmentation, centers, quaternions, half_sizes)
         raise ValueError(f"segmentation indices must lie in [0, {m}), got [{int(seg.min())}, {int(seg.max())}]")
     pick = lambda x: torch.gather(x.to(points), 1, seg[..., None].expand(-1, -1, x.shape[-1]))  # noqa: E731
     R = quaternion_to_rotation_matrix(pick(quaternions), validate=False)  # (B, N, 3, 3)
-    local = torch.einsum("bnj,bnji->bni", points - pick(centers), R)
-    outside = (local.abs() - pick(half_sizes)).clamp_min(0)
+    local = torch.einsum("bnj,bnji->bni", points - pick(centers), R)  # (B, N, 3) R^T (p - c)
+    outside = (local.abs() - pick(half_sizes)).clamp_min(0)  # (B, N, 3)
     return outside.norm(dim=-1).mean(dim=1)
 
 
 def reassigned_fraction(allocation, exists) -> torch.Tensor:
-    """How well the allocation (Eq. 3) and the existence (Sec. 3.4.4) agree: the share of the points whose
-    most allocated cuboid does not exist.
+    """Share of the points whose most allocated cuboid (Eq. 3) does not exist (Sec. 3.4.3).
 
-    allocation (B, N, M): the soft allocation W; exists (B, M) bool. Returns (B,) in [0, 1]. The
-    segmentation gives every point to its most allocated EXISTING cuboid, so these points end up in
-    a cuboid that the allocation did not choose for them, usually one that does not cover them
-    (it raises :func:`segment_box_distance`). The two disagree when the existence target counts
-    fewer allocated points than a small part has: the authors' 24 points are 0.6 % of their 4096
-    points but 2.3 % of 1024, more than a thin chair leg holds.
-    Example: W giving 3 of 4 points to cuboid 0 and one to cuboid 1, with only cuboid 0 existing, gives 0.25.
+    The segmentation moves these points to their most allocated EXISTING cuboid, usually one that does
+    not cover them (raising :func:`segment_box_distance`). It happens when the existence target needs more
+    points than a small part holds, e.g. the authors' 24 points with 1024 points per shape instead of 4096.
+
+    Args:
+        allocation: (B, N, M) the soft allocation W.
+        exists: (B, M) bool.
+
+    Returns:
+        (B,) in [0, 1].
     """
     allocation = as_float_tensor(allocation, "allocation")
     sizes = check_shape(allocation, ("B", "N", "M"), "allocation")

@@ -1,30 +1,13 @@
-"""The network of the paper (Sec. 3.1-3.3, Fig. 3): feature embedding, shape abstraction, segmentation.
+"""The network of the paper (Sec. 3.1-3.3, Fig. 3), readable: feature embedding, shape abstraction, segmentation.
 
 Shapes (batch-first): points (B, N, 3); cuboid centers (B, M, 3), unit quaternions (B, M, 4) in
-(w, x, y, z) order, half sizes (B, M, 3); allocation W (B, N, M), softmax over the last axis (over
-cuboids), i.e. the transpose of the paper's W_{m,n}.
-
-Building blocks, named after the paper:
-
-* :class:`EdgeConv` (the layers of E_pp, [DGCNN]), :class:`GlobalFeature` (shared layer + max-pool),
-  :class:`FeatureEmbedding` (E_pp, global feature and the VAE head predicting mu and log-variance), Sec. 3.1;
-* :class:`ShapeAbstraction` (E_cb, E_cf and the cuboid decoder D_cp = :class:`CuboidDecoder`), Sec. 3.2;
-* :class:`CuboidSegmentation` (affinity and point-to-cuboid allocation, Eq. (2)-(3)), Sec. 3.3;
-* :class:`CuboidAbstractionNet` (the whole network, configured by :class:`ModelConfig`).
-
-Readable and fast. EdgeConv and the global layer dominate the cost of a training step.
-:class:`EdgeConv` and :class:`GlobalFeature` are written as the paper describes them (the explicit
-(B, 2C, N, k) edge tensor, 1x1 layers, BatchNorm, LeakyReLU, max over neighbours).
-:class:`FastEdgeConv` and :class:`FastGlobalFeature`, below them, compute exactly the same functions
-of the same parameters faster; their docstrings list how they differ. The network uses the fast
-versions unless built with ``fast=False``. Tests check values, gradients and BatchNorm statistics of
-both against each other in float64; ``benchmarks/bench_model.py --variant fast readable`` times a
-training step of each. The chunked EdgeConv runs many small multi-threaded operations: on a CPU
-whose cores are already busy with other work, ``torch.set_num_threads(1)`` avoids threads waiting
-for each other.
-
-Why one file: it is the network of Fig. 3 in one place, the readable EdgeConv and its fast version
-side by side.
+(w, x, y, z) order, half sizes (B, M, 3); allocation W (B, N, M), a softmax over the cuboids, i.e. the
+transpose of the paper's W_{m,n}. Blocks are named after the paper: :class:`EdgeConv`, :class:`GlobalFeature`
+and :class:`FeatureEmbedding` (E_pp, f^g and the VAE head, Sec. 3.1), :class:`ShapeAbstraction` and
+:class:`CuboidDecoder` (E_cb, E_cf, D_cp, Sec. 3.2), :class:`CuboidSegmentation` (Eq. (2)-(3), Sec. 3.3), and
+:class:`CuboidAbstractionNet`, configured by :class:`ModelConfig`. EdgeConv and the global layer are written
+as the paper describes them; the network runs their fast twins of :mod:`cuboidlib.edgeconv_fast` (same
+parameters, same results) unless built with ``fast=False``.
 """
 
 from __future__ import annotations
@@ -38,17 +21,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._checks import as_float_tensor, check_finite, check_shape
-from . import kernels
 from .config import ConfigDict
+from .edgeconv_fast import FastEdgeConv, FastGlobalFeature
 from .neighbors import knn_indices
 
 __all__ = [
     "ModelConfig",
-    "knn_indices",
     "EdgeConv",
-    "FastEdgeConv",
     "GlobalFeature",
-    "FastGlobalFeature",
     "FeatureEmbedding",
     "CuboidDecoder",
     "ShapeAbstraction",
@@ -59,15 +39,10 @@ __all__ = [
     "ModelOutput",
     "CuboidAbstractionNet",
     "reparameterize",
+    # Re-exported, for the notebooks that import them from here: defined in neighbors and edgeconv_fast.
+    "knn_indices",
+    "FastEdgeConv",
 ]
-
-# Edges processed at once by the chunked EdgeConv: small enough for a chunk's (edges, channels)
-# tensors to stay in the CPU cache, large enough for matrix products to run at full speed.
-_EDGES_PER_CHUNK = 1 << 14
-# On a GPU every operation of a chunk costs a kernel launch whatever its size, and memory is ample: chunks
-# of 1 << 20 edges (a 64-channel float32 chunk tensor is 256 MiB) launch 64 times fewer kernels.
-_EDGES_PER_CHUNK_GPU = 1 << 20
-
 
 # Limits of a ModelConfig (checked before anything is allocated): far above the paper's network.
 _MAX_WIDTH = 8192
@@ -84,35 +59,29 @@ INPUT_NORMALS = ("none", "differences", "absolute")
 
 @dataclass(frozen=True)
 class ModelConfig(ConfigDict):
-    """Sizes of :class:`CuboidAbstractionNet`. The defaults are the paper's (Sec. 3.1-3.3).
+    """Sizes and options of :class:`CuboidAbstractionNet`; the defaults are the paper's (Sec. 3.1-3.3).
 
-    num_cuboids: M, the number of cuboids predicted per shape.
-    k: neighbours of each point in the EdgeConv graph, the point itself included.
-    edge_dims: output width of each EdgeConv layer of E_pp (both 1x1 layers of a block have it);
-        the point feature f^p has sum(edge_dims) channels (paper: 64 + 64 = 128).
-    global_dim: width of the global feature f^g (paper: 1024).
-    latent_dim: size of the latent code z (paper: 512).
-    cuboid_code_dim: width of the one-hot cuboid code embedding E_cb (paper: 64).
-    cuboid_feature_dims: widths of the layers of E_cf; the last one is the cuboid feature f^c
-        (paper: 128; the public code's hidden layer has 256).
-    exist_hidden_dim: hidden width of the existence head of D_cp (public code: 32).
-    seg_dim: width of g^p and g^c in the segmentation branch (paper: 64).
-    attention_scale: divide the affinity A_mn = g^c_m . g^p_n by sqrt(seg_dim) before the softmax,
-        as the public code does; the paper's Eq. (2) has no scale (default False).
-    cosine_affinity: None (the paper's dot product, default) or a positive number s: the affinity
-        becomes A_mn = s cos(g^c_m, g^p_n), bounded by |A_mn| <= s, so the softmax of Eq. (3) can
-        never saturate beyond a gap of 2 s (a change of the course's recipe, not the paper's).
-    affinity_temperature: T >= 1 divides the affinity before the softmax, W = softmax(A / T), so the
-        allocation stays softer and a misallocated point keeps a gradient towards other cuboids; the
-        argmax, hence the segmentation, does not change with T (default 1: the paper's Eq. (3)).
-    negative_slope: slope of every LeakyReLU (public code: 0.2).
-    input_normals: what the first EdgeConv reads of each point's unit normal. "none" (default): the
-        coordinates alone, as in the paper and the public code, which use the normals only in the
-        loss. "differences": the edge feature becomes [x_j - x_i, n_j - n_i, x_i], so a point feature
-        sees where the surface bends (a crease between two parts) but not which way a flat face
-        points. "absolute": [x_j - x_i, n_j - n_i, x_i, n_i], the normal itself too. The kNN graph stays
-        that of the 3-D points; with either of the last two the network needs the normals at
-        inference (``forward(points, normals)``).
+    Args:
+        num_cuboids: M, the cuboids predicted per shape.
+        k: neighbours of each point in the EdgeConv graph, the point itself included.
+        edge_dims: output width of each EdgeConv layer of E_pp; f^p has sum(edge_dims) channels (paper: 64 + 64).
+        global_dim: width of the global feature f^g (paper: 1024).
+        latent_dim: size of the latent code z (paper: 512).
+        cuboid_code_dim: width of the one-hot cuboid code embedding E_cb (paper: 64).
+        cuboid_feature_dims: widths of E_cf's layers, the last one f^c's (paper: 128; the public code adds a
+            hidden layer of 256).
+        exist_hidden_dim: hidden width of D_cp's existence head (public code: 32).
+        seg_dim: width of g^p and g^c in the segmentation branch (paper: 64).
+        attention_scale: divide the affinity of Eq. (2) by sqrt(seg_dim), as the public code does (the paper
+            does not).
+        negative_slope: slope of every LeakyReLU (public code: 0.2).
+        cosine_affinity: None (the paper's dot product) or s > 0: A_mn = s cos(g^c_m, g^p_n), so |A_mn| <= s and
+            the softmax of Eq. (3) never saturates beyond a gap of 2 s (the course's change, not the paper's).
+        affinity_temperature: T >= 1, W = softmax(A / T): a softer allocation, the same argmax (1: Eq. (3)).
+        input_normals: what the first EdgeConv reads of each point's unit normal: "none" (the paper's; the
+            normals enter only the loss), "differences" (edge feature [x_j - x_i, n_j - n_i, x_i]) or
+            "absolute" ([x_j - x_i, n_j - n_i, x_i, n_i]); the kNN graph stays that of the 3-D points, and
+            the last two need the normals at inference (``forward(points, normals)``).
 
     ``to_dict`` / ``from_dict`` convert to and from a dict of plain JSON types (for checkpoints).
     """
@@ -241,61 +210,51 @@ class ModelConfig(ConfigDict):
 # ----------------------------------------------------------------------------------------------
 
 
-def _uses_batch_stats(bn: nn.BatchNorm1d) -> bool:
-    """Whether ``bn`` normalises with batch statistics (training) or running ones (evaluation)."""
-    return bn.training or bn.running_mean is None
-
-
 def _next_momentum(bn: nn.BatchNorm1d) -> float:
     """Count one more training batch in ``bn`` and return its running-average factor (as nn.BatchNorm)."""
     bn.num_batches_tracked.add_(1)
     return bn.momentum if bn.momentum is not None else 1.0 / float(bn.num_batches_tracked)
 
 
-def _update_running_stats(bn: nn.BatchNorm1d, mean: torch.Tensor, var: torch.Tensor, count: int) -> None:
-    """Update ``bn``'s running statistics as nn.BatchNorm does, from the batch mean and biased variance."""
-    if not bn.training or bn.running_mean is None:
-        return
-    with torch.no_grad():
-        momentum = _next_momentum(bn)
-        bn.running_mean.mul_(1 - momentum).add_(mean.detach(), alpha=momentum)
-        unbiased = var.detach() * (count / max(count - 1, 1))
-        bn.running_var.mul_(1 - momentum).add_(unbiased, alpha=momentum)
-
-
-def _scale_sign(gamma: torch.Tensor) -> torch.Tensor:
-    """+1 where the BatchNorm scale is >= 0, else -1 (the max over a set commutes with a monotone map)."""
-    return torch.where(gamma.detach() >= 0, 1.0, -1.0).to(gamma.dtype)
-
-
 def reparameterize(
     mu: torch.Tensor, logvar: torch.Tensor, generator: torch.Generator | None = None
 ) -> torch.Tensor:
-    """z = mu + sigma * n with sigma = exp(logvar / 2) and n ~ N(0, I), Eq. (1).
+    """The re-parameterisation of Eq. (1): z = mu + sigma * n, sigma = exp(logvar / 2), n ~ N(0, I).
 
-    mu, logvar: (B, D). The paper writes sigma for the standard deviation in Eq. (1) and for the
-    log-variance in its KL loss (Eq. (8)); the network predicts the log-variance.
+    The paper's sigma is the standard deviation in Eq. (1) and the log-variance in the KL loss (Eq. (8));
+    the network predicts the log-variance.
+
+    Args:
+        mu, logvar: (B, D) the mean and log-variance of q(z | points).
+        generator: the source of n (default: torch's global one).
+
+    Returns:
+        (B, D) the latent codes z.
     """
     noise = torch.randn(mu.shape, generator=generator, dtype=mu.dtype, device=mu.device)
     return mu + noise * torch.exp(0.5 * logvar)
 
 
 # ----------------------------------------------------------------------------------------------
-# EdgeConv and the global feature (Sec. 3.1): readable versions first, then the fast ones
+# EdgeConv and the global feature (Sec. 3.1), readable (the fast ones: cuboidlib.edgeconv_fast)
 # ----------------------------------------------------------------------------------------------
 
 
 class EdgeConv(nn.Module):
     """One EdgeConv layer [DGCNN] of the point-feature encoder E_pp (Sec. 3.1), as the paper describes it.
 
-    For every point i and each of its k nearest neighbours j (itself included) the edge feature
-    [x_j - x_i, x_i] goes through two shared 1x1 layers (``conv1``: 2 C_in -> C_out and ``conv2``:
-    C_out -> C_out, no bias), each followed by BatchNorm over all B*N*k edges and LeakyReLU; the
-    output is the max over the k edges. This is the readable version: it builds the explicit
-    (B, 2 C_in, N, k) edge tensor. :class:`FastEdgeConv` computes the same function with the same
-    parameters faster; the network uses it unless built with ``fast=False``. ``relative_dims`` = r: the
-    last r input channels enter the edge feature only as differences, [x_j - x_i, x_i without them]
-    (2 C_in - r channels; the first layer of a network with ``input_normals="differences"``).
+    For each point i and each of its k nearest neighbours j (itself included), the edge feature
+    [x_j - x_i, x_i] goes through two shared bias-free 1x1 layers (``conv1``, ``conv2``), each followed by
+    BatchNorm over all B*N*k edges and LeakyReLU; the output is the max over the k edges. It builds the
+    explicit (B, 2 C_in, N, k) edge tensor; :class:`cuboidlib.edgeconv_fast.FastEdgeConv` computes the
+    same function of the same parameters faster.
+
+    Args:
+        in_dim, out_dim: C_in and C_out, the channels per point read and written.
+        k: neighbours per point.
+        negative_slope: LeakyReLU slope.
+        relative_dims: r, the last input channels that enter the edge feature only as differences,
+            [x_j - x_i, x_i without them] (2 C_in - r channels; ``input_normals="differences"``).
 
     Example::
 
@@ -323,7 +282,15 @@ class EdgeConv(nn.Module):
         return neighbours
 
     def forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
-        """x: (B, N, C_in) -> (B, N, C_out). neighbours: (B, N, k) indices, default kNN of x."""
+        """One EdgeConv layer.
+
+        Args:
+            x: (B, N, C_in) point features.
+            neighbours: (B, N, k) indices of each point's neighbours; None: the kNN graph of x.
+
+        Returns:
+            (B, N, C_out) new point features.
+        """
         nbr = self._neighbours(x, neighbours)
         batch, n, c = x.shape
         offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
@@ -341,10 +308,13 @@ class EdgeConv(nn.Module):
 
 
 class GlobalFeature(nn.Module):
-    """Shared fully connected layer + BatchNorm + LeakyReLU applied to every point, then max-pooled.
+    """The global feature f^g (Sec. 3.1, as in PointNet): a shared fully connected layer, BatchNorm and
+    LeakyReLU on every point, then the max over the points. :class:`cuboidlib.edgeconv_fast.FastGlobalFeature`
+    is the same function, faster.
 
-    (B, N, C_in) point features -> (B, C_out) global feature f^g (Sec. 3.1, as in PointNet). The
-    readable version; :class:`FastGlobalFeature` is the same function, faster.
+    Args:
+        in_dim, out_dim: C_in, the channels of the point features, and C_out, those of f^g.
+        negative_slope: LeakyReLU slope.
     """
 
     def __init__(self, in_dim: int, out_dim: int, negative_slope: float = 0.2):
@@ -354,294 +324,10 @@ class GlobalFeature(nn.Module):
         self.negative_slope = negative_slope
 
     def forward(self, f: torch.Tensor) -> torch.Tensor:
-        """f: (B, N, C_in) -> (B, C_out)."""
+        """Args: f: (B, N, C_in) point features. Returns: (B, C_out) the global feature f^g."""
         h = self.linear(f).transpose(1, 2)  # (B, C_out, N)
         h = self.bn(h)
         return F.leaky_relu(h, self.negative_slope).max(dim=-1).values
-
-
-# ----------------------------------------------------------------------------------------------
-# Fast versions (same functions, same parameters; see FastEdgeConv for the differences)
-# ----------------------------------------------------------------------------------------------
-
-
-def _use_compiled(P: torch.Tensor, k: int) -> bool:
-    """Whether _EdgeMLP runs its chunk loops with the compiled kernels (:mod:`cuboidlib.kernels`)."""
-    return kernels.enabled() and P.device.type == "cpu" and k <= 256
-
-
-class _EdgeMLP(torch.autograd.Function):
-    """Per-edge part of EdgeConv, computed chunk by chunk over points, and its exact gradient.
-
-    Inputs (R = B * N rows, E = R * k edges):
-        P, Q (R, C1): per-point projections; the first layer's value on edge (i, j) is u = P_j + Q_i.
-        nbr (R, k): global row index j of each neighbour of row i.
-        gamma1, beta1 (C1): BatchNorm of u;  mean1, var1 (C1): its mean and biased variance.
-        W2 (C2, C1): second layer (its rows already multiplied by the sign of BatchNorm-2's scale).
-        batch_stats: whether mean1, var1 are the batch statistics of u (training), so that the
-            gradient flows through them too, or fixed running statistics (evaluation).
-        eps, slope: BatchNorm epsilon, LeakyReLU slope;  rows: points per chunk.
-    Per edge: v = LeakyReLU(gamma1 (u - mean1) / sqrt(var1 + eps) + beta1), h = W2 v.
-    Outputs: hmax (R, C2) = max of h over the k neighbours, and the mean and biased variance of h
-    over all E edges (C2 each), from which the caller applies BatchNorm-2 and LeakyReLU to hmax.
-    The gradient of the max goes to one maximising edge (as torch.max), the one that was kept
-    in the forward pass. Only (R, C) tensors are kept for the backward pass, which recomputes each
-    chunk's edges.
-    """
-
-    @staticmethod
-    def forward(ctx, P, Q, nbr, gamma1, beta1, W2, mean1, var1, batch_stats, eps, slope, rows):
-        R, k = nbr.shape
-        rstd1 = torch.rsqrt(var1 + eps)
-        scale1 = gamma1 * rstd1
-        P1 = P * scale1  # u -> gamma1 (u - mean1) rstd1 + beta1 = P1_j + Q1_i
-        Q1 = Q * scale1 + (beta1 - scale1 * mean1)
-        # The value of h on an edge at the BatchNorm mean, a typical value of h: the chunks produce
-        # h - shift, whose sums give an accurate variance.
-        shift = W2 @ F.leaky_relu(beta1, slope)
-        if _use_compiled(P, k):
-            hmax, harg, s1, s2 = kernels.ops().edge_mlp_forward(P1, Q1, nbr, W2, shift, slope, rows)
-        else:
-            hmax, harg, s1, s2 = _EdgeMLP._forward_chunks(P1, Q1, nbr, W2, shift, slope, rows)
-        hmax += shift
-        n_edges = R * k
-        m = s1 / n_edges
-        h_mean = shift + m
-        h_var = (s2 / n_edges - m * m).clamp_min(0)
-        ctx.save_for_backward(P, Q, nbr, gamma1, beta1, W2, mean1, rstd1, harg, h_mean)
-        ctx.batch_stats = batch_stats
-        ctx.slope = slope
-        ctx.rows = rows
-        return hmax, h_mean, h_var
-
-    @staticmethod
-    @torch.autograd.function.once_differentiable
-    def backward(ctx, g_hmax, g_hmean, g_hvar):
-        P, Q, nbr, gamma1, beta1, W2, mean1, rstd1, harg, h_mean = ctx.saved_tensors
-        slope, rows = ctx.slope, ctx.rows
-        R, k = nbr.shape
-        n_edges = R * k
-        P_hat = P * rstd1  # normalised u: xhat = P_hat_j + Q_hat_i
-        Q_hat = (Q - mean1) * rstd1
-        g_hmax = g_hmax.contiguous()
-        # dL/dh = dL/dmean / E + dL/dvar * 2 (h - mean) / E, plus dL/dhmax on the maximising edge
-        c_var = g_hvar * (2.0 / n_edges)
-        c_mean = g_hmean / n_edges - c_var * h_mean
-        W2_var = W2 * c_var.unsqueeze(1)
-        chunks = (P_hat, Q_hat, nbr, gamma1, beta1, W2, W2_var, c_mean, harg, g_hmax, slope, rows, ctx.batch_stats)
-        if _use_compiled(P, k):
-            g_W2, g_rowsum, g_scatter, x_scatter = kernels.ops().edge_mlp_backward(*chunks)
-        else:
-            g_W2, g_rowsum, g_scatter, x_scatter = _EdgeMLP._backward_chunks(*chunks)
-        # Sums over all edges, from the per-point sums: sum dL/dz and sum dL/dz * xhat.
-        sum_gz = g_rowsum.sum(0)
-        sum_gzx = (g_scatter * P_hat).sum(0) + (g_rowsum * Q_hat).sum(0)
-        # BatchNorm backward, dL/du = gamma rstd (dL/dz - mean(dL/dz) - xhat mean(dL/dz xhat)), summed
-        # over the k edges (i, .) of each point (for Q) and over the edges (., j) ending at it (for P).
-        scale1 = gamma1 * rstd1
-        if ctx.batch_stats:
-            mean_gz = sum_gz / n_edges
-            mean_gzx = sum_gzx / n_edges
-            in_degree = torch.bincount(nbr.reshape(-1), minlength=R).to(P.dtype).unsqueeze(1)
-            x_rowsum = k * Q_hat + F.embedding_bag(nbr, P_hat, mode="sum")
-            g_Q = scale1 * (g_rowsum - k * mean_gz - x_rowsum * mean_gzx)
-            g_P = scale1 * (g_scatter - in_degree * mean_gz - x_scatter * mean_gzx)
-        else:
-            g_Q = scale1 * g_rowsum
-            g_P = scale1 * g_scatter
-        return g_P, g_Q, None, sum_gzx, sum_gz, g_W2, None, None, None, None, None, None
-
-    @staticmethod
-    def _forward_chunks(P1, Q1, nbr, W2, shift, slope, rows):
-        """The per-edge loop of forward: (hmax - shift, argmax over the k neighbours, sum of h - shift,
-        sum of (h - shift)^2). ``kernels.cpp``'s edge_mlp_forward is the compiled version of it."""
-        R, C1 = P1.shape
-        k = nbr.shape[1]
-        C2 = W2.shape[0]
-        hmax = P1.new_empty(R, C2)
-        harg = torch.empty(R, C2, dtype=torch.uint8 if k <= 256 else torch.long, device=P1.device)
-        position = torch.arange(k, dtype=P1.dtype, device=P1.device).view(1, k, 1)
-        s1 = P1.new_zeros(C2)
-        s2 = P1.new_zeros(C2)
-        for r0 in range(0, R, rows):
-            r1 = min(R, r0 + rows)
-            v = P1.index_select(0, nbr[r0:r1].reshape(-1)).view(r1 - r0, k, C1)
-            F.leaky_relu_(v.add_(Q1[r0:r1].unsqueeze(1)), slope)
-            hc = torch.addmm(-shift, v.view(-1, C1), W2.T)  # h - shift, (edges, C2)
-            s1 += hc.sum(0)
-            hc3 = hc.view(r1 - r0, k, C2)
-            top = torch.amax(hc3, dim=1, keepdim=True)
-            hmax[r0:r1] = top.squeeze(1)
-            # index of a maximising neighbour (the last one if several tie): 1 + sign(h - max) is 1
-            # at the maxima and 0 elsewhere (float arithmetic is much faster here than comparisons)
-            at_max = torch.sub(hc3, top).sign_().add_(1).mul_(position)
-            harg[r0:r1] = torch.amax(at_max, dim=1)
-            s2 += hc.mul_(hc).sum(0)
-        return hmax, harg, s1, s2
-
-    @staticmethod
-    def _backward_chunks(P_hat, Q_hat, nbr, gamma1, beta1, W2, W2_var, c_mean, harg, g_hmax, slope, rows, batch_stats):
-        """The per-edge loop of backward: (dL/dW2, per point i the sum of dL/dz over its edges (i, .),
-        per point j the sums of dL/dz and of xhat over the edges (., j) ending at it (the latter only
-        with ``batch_stats``, else None)). ``kernels.cpp``'s edge_mlp_backward is the compiled version; it
-        returns the same sums computed with two matrix products per chunk instead of three (its comments
-        derive them)."""
-        R, C1 = P_hat.shape
-        k = nbr.shape[1]
-        C2 = W2.shape[0]
-        g_W2 = torch.zeros_like(W2)
-        g_rowsum = torch.empty_like(Q_hat)  # per point i: sum over its k edges of dL/dz
-        g_scatter = torch.zeros_like(P_hat)  # per point j: sum over the edges (i, j) of dL/dz
-        x_scatter = torch.zeros_like(P_hat) if batch_stats else None  # the same for xhat
-        for r0 in range(0, R, rows):
-            r1 = min(R, r0 + rows)
-            idx = nbr[r0:r1].reshape(-1)
-            xhat = P_hat.index_select(0, idx).view(r1 - r0, k, C1).add_(Q_hat[r0:r1].unsqueeze(1))
-            if x_scatter is not None:
-                x_scatter.index_add_(0, idx, xhat.view(-1, C1))
-            v = F.leaky_relu_(torch.addcmul(beta1, xhat, gamma1), slope).view(-1, C1)
-            gh = torch.addmm(c_mean, v, W2_var.T)  # c_mean + c_var * h
-            gh.view(r1 - r0, k, C2).scatter_add_(1, harg[r0:r1].long().unsqueeze(1), g_hmax[r0:r1].unsqueeze(1))
-            g_W2.addmm_(gh.T, v)
-            # LeakyReLU backward from its output (v > 0 exactly where its input is > 0)
-            gz = torch.ops.aten.leaky_relu_backward(gh @ W2, v, slope, True)
-            g_rowsum[r0:r1] = gz.view(r1 - r0, k, C1).sum(1)
-            g_scatter.index_add_(0, idx, gz)
-        return g_W2, g_rowsum, g_scatter, x_scatter
-
-
-class FastEdgeConv(EdgeConv):
-    """FAST VERSION of :class:`EdgeConv`: the same function of the same parameters (state dicts are
-    interchangeable), faster and with far less memory (``benchmarks/bench_model.py --variant fast
-    readable`` measures a training step of each).
-
-    Differences from the readable version, none of which changes the result beyond rounding:
-
-    1. the first 1x1 layer of the edge feature [x_j - x_i, x_i] is linear, so it is computed once per
-       point (P_j + Q_i) and gathered, instead of once per edge;
-    2. LeakyReLU and BatchNorm's per-channel affine map are monotone, so the max over the k
-       neighbours is taken before the second BatchNorm and LeakyReLU (the min where its scale is
-       negative);
-    3. the per-edge part runs in chunks of ``edges_per_chunk`` edges (default: 2^14 on the CPU, 2^20 on a
-       GPU) with a hand-written backward
-       (:class:`_EdgeMLP`) that recomputes each chunk instead of storing (B, N, k, C) tensors; the
-       first BatchNorm's statistics come from per-point sums (:meth:`_edge_stats`).
-
-    BatchNorm still uses the statistics of all edges, and the running statistics are updated the same
-    way. Tests compare values, gradients and running statistics with :class:`EdgeConv` in float64.
-    """
-
-    def __init__(self, in_dim: int, out_dim: int, k: int, negative_slope: float = 0.2,
-                 edges_per_chunk: int | None = None, relative_dims: int = 0):
-        super().__init__(in_dim, out_dim, k, negative_slope, relative_dims)
-        self.edges_per_chunk = edges_per_chunk
-
-    def _chunk_rows(self, device: torch.device) -> int:
-        """Points per chunk: ``edges_per_chunk`` (or the device's default) edges, at least one point."""
-        edges = self.edges_per_chunk or (_EDGES_PER_CHUNK if device.type == "cpu" else _EDGES_PER_CHUNK_GPU)
-        return max(1, edges // self.k)
-
-    def forward(self, x: torch.Tensor, neighbours: torch.Tensor | None = None) -> torch.Tensor:
-        """x: (B, N, C_in) -> (B, N, C_out). neighbours: (B, N, k) indices, default kNN of x."""
-        nbr = self._neighbours(x, neighbours)
-        batch, n, _ = x.shape
-        rows, k = batch * n, self.k
-        W_a, W_b = self.conv1.weight[:, : self.in_dim], self.conv1.weight[:, self.in_dim :]
-        # conv1 [x_j - x_i, x_i] = W_a (x_j - c) + (W_b x_i - W_a (x_i - c)) = P_j + Q_i for any c; c =
-        # the cloud's mean keeps P and Q small, so that little precision is lost when they cancel.
-        # (W_b reads x_i without its last relative_dims channels.)
-        centred = x - x.detach().mean(dim=1, keepdim=True)
-        P = (centred @ W_a.T).reshape(rows, self.out_dim)
-        Q = (x[..., : self.in_dim - self.relative_dims] @ W_b.T).reshape(rows, self.out_dim) - P
-        offsets = torch.arange(batch, device=x.device).view(batch, 1, 1) * n
-        flat_nbr = (nbr + offsets).reshape(rows, k)
-
-        if _uses_batch_stats(self.bn1):
-            with torch.no_grad():
-                mean1, var1 = self._edge_stats(P.detach(), Q.detach(), flat_nbr, self._chunk_rows(x.device))
-            _update_running_stats(self.bn1, mean1, var1, rows * k)
-        else:
-            mean1, var1 = self.bn1.running_mean, self.bn1.running_var
-
-        sign = _scale_sign(self.bn2.weight)
-        hmax, h_mean, h_var = _EdgeMLP.apply(
-            P,
-            Q,
-            flat_nbr,
-            self.bn1.weight,
-            self.bn1.bias,
-            self.conv2.weight * sign.unsqueeze(1),
-            mean1,
-            var1,
-            _uses_batch_stats(self.bn1),
-            self.bn1.eps,
-            self.negative_slope,
-            self._chunk_rows(x.device),
-        )
-        if _uses_batch_stats(self.bn2):
-            _update_running_stats(self.bn2, sign * h_mean, h_var, rows * k)
-        else:
-            h_mean, h_var = sign * self.bn2.running_mean, self.bn2.running_var
-        y = (hmax - h_mean) * (self.bn2.weight * sign) * torch.rsqrt(h_var + self.bn2.eps) + self.bn2.bias
-        return F.leaky_relu(y, self.negative_slope).view(batch, n, self.out_dim)
-
-    @staticmethod
-    def _edge_stats(P: torch.Tensor, Q: torch.Tensor, nbr: torch.Tensor, rows: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mean and biased variance over all edges of u = P_j + Q_i, from per-point sums.
-
-        With Qc = Q - mean and S_i = sum of P_j over the neighbours j of i:
-        sum over edges of (u - mean)^2 = sum_j indegree_j P_j^2 + k sum_i Qc_i^2 + 2 sum_i Qc_i S_i.
-        The terms can be much larger than their sum (P and Q nearly cancel on close neighbours), so
-        the sums are taken in float64, where that cancellation costs nothing visible. S is summed
-        ``rows`` points at a time, so no (B * N, C) float64 tensor of it is ever stored.
-        """
-        n_rows, k = nbr.shape
-        in_degree = torch.bincount(nbr.reshape(-1), minlength=n_rows)
-        if _use_compiled(P, k):  # the same sums, compiled (cuboidlib.kernels)
-            mean, var = kernels.ops().edge_stats(P, Q, nbr, in_degree).to(P.dtype)
-            return mean, var
-        P64, Q64 = P.double(), Q.double()
-        in_degree = in_degree.to(P64.dtype)
-        mean = (in_degree @ P64 + k * Q64.sum(0)) / (n_rows * k)
-        Qc = Q64 - mean
-        cross = torch.zeros_like(mean)  # sum_i Qc_i S_i
-        for r0 in range(0, n_rows, rows):
-            S = P64.index_select(0, nbr[r0 : r0 + rows].reshape(-1)).view(-1, k, P.shape[1]).sum(1)
-            cross += (Qc[r0 : r0 + rows] * S).sum(0)
-        sq = in_degree @ (P64 * P64) + k * (Qc * Qc).sum(0) + 2 * cross
-        return mean.to(P.dtype), (sq / (n_rows * k)).clamp_min(0).to(P.dtype)
-
-
-class FastGlobalFeature(GlobalFeature):
-    """FAST VERSION of :class:`GlobalFeature` (same parameters, same values and gradients).
-
-    Differences: the max over points is taken of the linear layer's output before BatchNorm and
-    LeakyReLU (monotone per channel; the min where the scale is negative), and the BatchNorm
-    statistics come from the mean and covariance of the input, so the (B, N, C_out) activations are
-    never stored.
-    """
-
-    def forward(self, f: torch.Tensor) -> torch.Tensor:
-        batch, n, c = f.shape
-        sign = _scale_sign(self.bn.weight)
-        W = self.linear.weight * sign.unsqueeze(1)
-        if _uses_batch_stats(self.bn):
-            flat = f.reshape(batch * n, c)
-            mean_f = flat.mean(0)
-            centred = flat - mean_f
-            cov = centred.T @ centred / (batch * n)
-            mean = W @ mean_f
-            var = ((W @ cov) * W).sum(1)
-            _update_running_stats(self.bn, sign * mean, var, batch * n)
-        else:
-            mean, var = sign * self.bn.running_mean, self.bn.running_var
-        with torch.no_grad():  # the point where each channel is largest: (B, C_out) row indices
-            arg = torch.stack([(W @ f[b].T).argmax(1) for b in range(batch)])
-            arg += torch.arange(batch, device=f.device).unsqueeze(1) * n
-        chosen = f.reshape(batch * n, c).index_select(0, arg.view(-1)).view(batch, -1, c)  # (B, C_out, C_in)
-        hmax = (chosen * W).sum(-1)
-        y = (hmax - mean) * (self.bn.weight * sign) * torch.rsqrt(var + self.bn.eps) + self.bn.bias
-        return F.leaky_relu(y, self.negative_slope)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -650,14 +336,15 @@ class FastGlobalFeature(GlobalFeature):
 
 
 class FeatureEmbedding(nn.Module):
-    """E_pp (EdgeConv layers), the global feature and the VAE head, Sec. 3.1.
+    """E_pp (the EdgeConv layers), the global feature f^g and the VAE head predicting mu and log-variance (Sec. 3.1).
 
-    forward(points (B, N, 3), normals (B, N, 3) or None) -> (point_features (B, N, sum(edge_dims)),
-    global_feature (B, global_dim), mu (B, latent_dim), logvar (B, latent_dim)). The first EdgeConv
-    reads the coordinates (and the normals beside them unless ``input_normals`` is "none") and uses the kNN graph
-    of the 3-D points, each later one recomputes it in the previous layer's feature space.
-    ``fast=False`` builds the readable :class:`EdgeConv` / :class:`GlobalFeature` instead of their
-    fast versions (same parameters and results, slower).
+    The first EdgeConv uses the kNN graph of the 3-D points, each later one that of the previous layer's
+    features.
+
+    Args:
+        config: the network's sizes.
+        fast: the fast layers of :mod:`cuboidlib.edgeconv_fast` (default) or, if False, the readable
+            :class:`EdgeConv` and :class:`GlobalFeature` (same parameters and results, slower).
     """
 
     def __init__(self, config: ModelConfig, fast: bool = True):
@@ -677,7 +364,16 @@ class FeatureEmbedding(nn.Module):
     def forward(
         self, points: torch.Tensor, normals: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """points (B, N, 3), and normals (B, N, 3) unless the config's ``input_normals`` is "none"."""
+        """Embed a batch of point clouds.
+
+        Args:
+            points: (B, N, 3).
+            normals: (B, N, 3) unit normals, read unless the config's ``input_normals`` is "none".
+
+        Returns:
+            point_features (B, N, sum(edge_dims)) f^p, global_feature (B, global_dim) f^g, mu and logvar
+            (B, latent_dim).
+        """
         h, features, neighbours = points, [], None
         if self.input_normals:  # [x, n] per point; the first graph is that of the 3-D points
             h, neighbours = torch.cat([points, normals], dim=-1), knn_indices(points, self.edge_convs[0].k)
@@ -699,9 +395,12 @@ class FeatureEmbedding(nn.Module):
 class CuboidPrediction:
     """Cuboid parameters predicted by D_cp (Sec. 3.2) for B shapes and M cuboids.
 
-    centers (B, M, 3) in (-1, 1) (tanh); quaternions (B, M, 4) unit, (w, x, y, z); half_sizes
-    (B, M, 3) in (0, 1) (sigmoid); exist_logits (B, M), the existence delta_m = sigmoid(logit);
-    cuboid_features (B, M, C) the cuboid features f^c.
+    Attributes:
+        centers: (B, M, 3) in (-1, 1) (tanh).
+        quaternions: (B, M, 4) unit, (w, x, y, z).
+        half_sizes: (B, M, 3) in (0, 1) (sigmoid).
+        exist_logits: (B, M); the existence delta_m = sigmoid(logit).
+        cuboid_features: (B, M, C) the cuboid features f^c.
     """
 
     centers: torch.Tensor
@@ -717,13 +416,15 @@ class CuboidPrediction:
 
 
 class CuboidDecoder(nn.Module):
-    """D_cp: cuboid feature f^c (..., C) -> centre, quaternion, half size and existence logit (Sec. 3.2).
+    """D_cp (Sec. 3.2): linear heads for the half sizes (sigmoid), the quaternion (normalised) and the centre
+    (tanh), and a small MLP (C -> hidden -> 1) for the existence logit. As in the paper (Sec. 3.4.5), training
+    starts from axis-aligned cuboids of half size 0.5 at the origin (size and translation biases 0, the
+    quaternion's [1, 0, 0, 0]).
 
-    Linear heads: half sizes = sigmoid (in (0, 1)), quaternion normalised to unit length, centre =
-    tanh (in (-1, 1)); existence = a logit from a small MLP (C -> hidden -> 1). As the paper says
-    (Sec. 3.4.5), the biases of the size and translation heads start at 0 and the quaternion
-    head's at [1, 0, 0, 0], so training starts from axis-aligned cuboids of half size 0.5 at the
-    origin.
+    Args:
+        in_dim: C, the width of the cuboid feature f^c.
+        exist_hidden_dim: hidden width of the existence head.
+        negative_slope: LeakyReLU slope.
     """
 
     def __init__(self, in_dim: int, exist_hidden_dim: int = 32, negative_slope: float = 0.2):
@@ -740,6 +441,7 @@ class CuboidDecoder(nn.Module):
             self.rotation.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
 
     def forward(self, cuboid_features: torch.Tensor) -> CuboidPrediction:
+        """Args: cuboid_features: (B, M, C) f^c. Returns: the :class:`CuboidPrediction` of the B x M cuboids."""
         return CuboidPrediction(
             centers=torch.tanh(self.translation(cuboid_features)),
             quaternions=F.normalize(self.rotation(cuboid_features), dim=-1),
@@ -750,13 +452,12 @@ class CuboidDecoder(nn.Module):
 
 
 class ShapeAbstraction(nn.Module):
-    """Latent code z (B, latent_dim) -> M cuboids (Sec. 3.2).
+    """Latent code z -> M cuboids (Sec. 3.2): E_cb embeds cuboid m's one-hot code (a bias-free linear layer and
+    LeakyReLU), E_cf maps [z, code] to f^c_m, D_cp decodes it; all three are shared by the cuboids. (E_cf's
+    layers have a bias here, not in the public code.)
 
-    For cuboid m, the one-hot code v_m goes through E_cb (a bias-free linear layer + LeakyReLU, a
-    learned 64-d code per cuboid), is concatenated with z and goes through E_cf (fully connected
-    layers with LeakyReLU) to the cuboid feature f^c_m, which D_cp decodes. E_cb, E_cf and D_cp are
-    shared by all cuboids; only the one-hot code tells them apart. (The public code's E_cf layers
-    have no bias; here they are ordinary fully connected layers with a bias.)
+    Args:
+        config: the network's sizes.
     """
 
     def __init__(self, config: ModelConfig):
@@ -775,6 +476,7 @@ class ShapeAbstraction(nn.Module):
         self.D_cp = CuboidDecoder(width, config.exist_hidden_dim, slope)
 
     def forward(self, z: torch.Tensor) -> CuboidPrediction:
+        """Args: z: (B, latent_dim) latent codes. Returns: the :class:`CuboidPrediction` of B x M cuboids."""
         batch, m = z.shape[0], self.num_cuboids
         codes = self.E_cb(torch.eye(m, dtype=z.dtype, device=z.device))  # (M, code)
         joint = torch.cat([z.unsqueeze(1).expand(batch, m, -1), codes.expand(batch, m, -1)], dim=-1)
@@ -787,14 +489,16 @@ class ShapeAbstraction(nn.Module):
 
 
 class CuboidSegmentation(nn.Module):
-    """Point-to-cuboid allocation from point and cuboid features, Eq. (2)-(3) (Sec. 3.3).
+    """Point-to-cuboid allocation (Sec. 3.3): the affinity A_nm = g^c_m . g^p_n of Eq. (2), with g^p and g^c the
+    point and cuboid features reduced to seg_dim by bias-free linear layers, and W = softmax of A over the
+    cuboids, Eq. (3); the argmax over the cuboids is the segmentation.
 
-    g^p = point features reduced to seg_dim, g^c = cuboid features reduced to seg_dim (bias-free
-    linear layers); affinity A[b, n, m] = g^c_m . g^p_n (Eq. (2), stored (B, N, M)); W = softmax of
-    A over the M cuboids (Eq. (3)); argmax over M gives the segmentation. ``attention_scale=True``
-    divides A by sqrt(seg_dim) as the public code does (the paper has no scale);
-    ``cosine_affinity=s`` uses A = s cos(g^c_m, g^p_n) instead, bounded by s;
-    ``temperature=T`` divides A by T (the returned logits include every factor).
+    Args:
+        point_dim, cuboid_dim: C_p and C_c, the widths of f^p and f^c.
+        seg_dim: the width of g^p and g^c.
+        attention_scale: divide A by sqrt(seg_dim), as the public code does (the paper does not).
+        cosine_affinity: None, or s: A = s cos(g^c_m, g^p_n) instead, bounded by s.
+        temperature: T, divide A by T (the returned logits include every factor).
     """
 
     def __init__(self, point_dim: int, cuboid_dim: int, seg_dim: int = 64, attention_scale: bool = False,
@@ -809,7 +513,15 @@ class CuboidSegmentation(nn.Module):
     def forward(
         self, point_features: torch.Tensor, cuboid_features: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, N, C_p), (B, M, C_c) -> affinity logits (B, N, M), allocation W (B, N, M)."""
+        """Allocate the points to the cuboids.
+
+        Args:
+            point_features: (B, N, C_p) f^p.
+            cuboid_features: (B, M, C_c) f^c.
+
+        Returns:
+            The affinity logits (B, N, M) and the allocation W (B, N, M), rows summing to 1.
+        """
         g_p, g_c = self.point_proj(point_features), self.cuboid_proj(cuboid_features)
         if self.cosine_affinity is not None:
             g_p, g_c = F.normalize(g_p, dim=-1), F.normalize(g_c, dim=-1)
@@ -825,12 +537,16 @@ class CuboidSegmentation(nn.Module):
 
 @torch.no_grad()
 def allocation_saturation(affinity: torch.Tensor, threshold: float = 0.999) -> tuple[torch.Tensor, torch.Tensor]:
-    """How hard the allocation softmax (Eq. (3)) is: affinity logits (B, N, M) -> two scalars.
+    """How hard the allocation softmax of Eq. (3) is. A logit gap g leaves the other cuboids a weight of at
+    most e^-g, and the gradient that could move the point to them shrinks with it (a gap of 30 is final).
 
-    Returns the fraction of points whose largest weight max_m W_nm exceeds ``threshold`` and the
-    median gap between the largest and the second-largest logit. A gap g leaves the other cuboids
-    a weight of at most e^-g, and the loss gradient that could move a point to them shrinks with it:
-    a point whose gap is 30 is allocated for good.
+    Args:
+        affinity: (B, N, M) affinity logits.
+        threshold: the largest weight above which a point counts as saturated.
+
+    Returns:
+        Two scalars: the fraction of points whose largest weight max_m W_nm exceeds ``threshold``, and the
+        median gap between the largest and the second-largest logit.
     """
     if affinity.shape[-1] < 2:
         zero = affinity.new_zeros(())
@@ -848,12 +564,16 @@ def allocation_saturation(affinity: torch.Tensor, threshold: float = 0.999) -> t
 
 @dataclass(eq=False)
 class ModelOutput(CuboidPrediction):
-    """Everything :class:`CuboidAbstractionNet` predicts for a batch of B point clouds of N points.
+    """Everything :class:`CuboidAbstractionNet` predicts for B point clouds of N points: the cuboids of
+    :class:`CuboidPrediction` (M per shape) and
 
-    Cuboids as in :class:`CuboidPrediction` (M per shape); W (B, N, M) the allocation (rows sum to
-    1); affinity (B, N, M) its logits; mu, logvar (B, latent_dim) the mean and LOG-variance of
-    q(z | points) (the paper's sigma in the KL loss, Eq. (8)); z (B, latent_dim) the code that was
-    decoded; point_features (B, N, C_p) f^p; global_feature (B, global_dim) f^g.
+    Attributes:
+        W: (B, N, M) the allocation, rows summing to 1.
+        affinity: (B, N, M) its logits.
+        mu, logvar: (B, latent_dim) the mean and LOG-variance of q(z | points) (the paper's sigma in Eq. (8)).
+        z: (B, latent_dim) the code that was decoded.
+        point_features: (B, N, C_p) f^p.
+        global_feature: (B, global_dim) f^g.
     """
 
     W: torch.Tensor
@@ -873,12 +593,17 @@ class ModelOutput(CuboidPrediction):
 def read_normals_from_start(state: dict[str, torch.Tensor], input_normals: str) -> dict[str, torch.Tensor]:
     """The weights of a network that reads coordinates only, as those of one that also reads the normals.
 
-    ``state``: the state dict of a network with ``input_normals="none"``, whose first EdgeConv reads the
-    edge feature [p_j - p_i, p_i] (``conv1.weight`` of shape (C, 6)). Returned: a copy for the same
-    network with ``input_normals`` = "differences" (edge feature [p_j - p_i, n_j - n_i, p_i], weight
-    (C, 9)) or "absolute" ([p_j - p_i, n_j - n_i, p_i, n_i], (C, 12)); the columns of the normal channels
-    are zero, so that the new network computes exactly the old one's function until training moves them.
-    A second training stage uses it to start reading normals from a first stage that did not.
+    The normal channels' columns are zero, so the new network computes exactly the old one's function until
+    training moves them (a second training stage starts reading normals this way).
+
+    Args:
+        state: the state dict of a network with ``input_normals="none"``, whose first EdgeConv reads
+            [p_j - p_i, p_i] (``conv1.weight`` (C, 6)).
+        input_normals: "differences" (edge feature [p_j - p_i, n_j - n_i, p_i]) or "absolute"
+            ([p_j - p_i, n_j - n_i, p_i, n_i]).
+
+    Returns:
+        A copy of ``state`` whose first ``conv1.weight`` is (C, 9) or (C, 12).
 
     Example::
 
@@ -904,15 +629,16 @@ def read_normals_from_start(state: dict[str, torch.Tensor], input_normals: str) 
 
 
 class CuboidAbstractionNet(nn.Module):
-    """The paper's network (Fig. 3): point cloud -> M cuboids + point-to-cuboid allocation.
+    """The paper's network (Fig. 3): point cloud -> M cuboids and the point-to-cuboid allocation.
 
-    ``forward(points)`` runs the feature embedding (Sec. 3.1), the shape abstraction (Sec. 3.2) and
-    the segmentation (Sec. 3.3). The latent code is sampled with the re-parameterisation of Eq. (1)
-    in training mode and is the mean mu in evaluation mode, unless ``sample_latent`` says otherwise
-    (the public code samples in both). ``encode`` gives (mu, logvar); ``decode(z)`` the cuboids of
-    latent codes (for generation and interpolation). ``fast=False`` builds the readable EdgeConv and
-    global layer (:class:`EdgeConv`, :class:`GlobalFeature`) instead of their fast versions: the
-    same parameters (a state dict loads into either) and the same results, several times slower.
+    ``forward`` runs the feature embedding (Sec. 3.1), the shape abstraction (Sec. 3.2) and the segmentation
+    (Sec. 3.3); ``encode`` gives (mu, logvar), ``decode`` the cuboids of latent codes (generation,
+    interpolation).
+
+    Args:
+        config: the sizes (default: the paper's).
+        fast: the fast EdgeConv and global layer (default) or, if False, the readable :class:`EdgeConv` and
+            :class:`GlobalFeature`: the same parameters (a state dict loads into either) and results, slower.
     """
 
     def __init__(self, config: ModelConfig | None = None, fast: bool = True):
@@ -956,14 +682,28 @@ class CuboidAbstractionNet(nn.Module):
         return normals
 
     def encode(self, points: torch.Tensor, normals: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """points (B, N, 3) [, normals (B, N, 3) for a network that reads them, ``input_normals``] -> mu,
-        logvar (B, latent_dim) of q(z | points) (Sec. 3.1)."""
+        """Encode point clouds (Sec. 3.1).
+
+        Args:
+            points: (B, N, 3) with N > k.
+            normals: (B, N, 3), for a network that reads them (``ModelConfig.input_normals``).
+
+        Returns:
+            mu, logvar: (B, latent_dim) the mean and log-variance of q(z | points).
+        """
         points = self._check_points(points)
         _, _, mu, logvar = self.embedding(points, self._check_normals(normals, points))
         return mu, logvar
 
     def decode(self, z: torch.Tensor) -> CuboidPrediction:
-        """Latent codes z (B, latent_dim) -> cuboids and existence logits (Sec. 3.2)."""
+        """Decode latent codes (Sec. 3.2).
+
+        Args:
+            z: (B, latent_dim) latent codes.
+
+        Returns:
+            The :class:`CuboidPrediction` (cuboids and existence logits) of B x M cuboids.
+        """
         param = next(self.parameters())
         z = as_float_tensor(z, "z", dtype=param.dtype, device=param.device)
         check_shape(z, ("B", self.config.latent_dim), "z")
@@ -977,13 +717,18 @@ class CuboidAbstractionNet(nn.Module):
         sample_latent: bool | None = None,
         generator: torch.Generator | None = None,
     ) -> ModelOutput:
-        """points (B, N, 3) with N > k -> :class:`ModelOutput`.
+        """Run the whole network.
 
-        normals: (B, N, 3) unit normals, read (and required) when ``ModelConfig.input_normals`` is
-            "differences" or "absolute", ignored when it is "none".
+        Args:
+            points: (B, N, 3) with N > k.
+            normals: (B, N, 3) unit normals, required when ``ModelConfig.input_normals`` is "differences" or
+                "absolute", ignored when it is "none".
+            sample_latent: draw z = mu + sigma * n (Eq. (1)) if True, use z = mu if False; None: sample in
+                training mode only (the public code samples in both).
+            generator: the source of n (default: torch's global one).
 
-        sample_latent: draw z = mu + sigma * n (Eq. (1)) if True, use z = mu if False; None means
-            "sample in training mode only". generator: the source of n (default: torch's global one).
+        Returns:
+            The :class:`ModelOutput`.
         """
         points = self._check_points(points)
         point_features, global_feature, mu, logvar = self.embedding(points, self._check_normals(normals, points))

@@ -1,23 +1,10 @@
 """Exact nearest-neighbour search, the one used everywhere in cuboidlib.
 
-Three places need neighbours: EdgeConv builds a k-nearest-neighbour graph of points and of features
-(Sec. 3.2, :mod:`cuboidlib.model`), normal estimation fits planes to point neighbourhoods
-(:mod:`cuboidlib.normals`), and the Chamfer distance pairs every point with the nearest point of the
-other set in both directions (:mod:`cuboidlib.distance`, :mod:`cuboidlib.metrics`). All three use the
-two functions here:
-
-- :func:`knn_indices`: the ``k`` nearest points of every point in its own cloud, (B, N, C) -> (B, N, k);
-- :func:`nearest_indices`: for two sets a (B, Na, C) and b (B, Nb, C), the nearest point of b for every
-  point of a and the nearest point of a for every point of b, in one pass;
-- :func:`nearest_index`: the first half of that alone, the nearest point of b for every point of a.
-
-All compute squared distances block by block as |x|^2 + |y|^2 - 2 x.y with a matrix product, so
-memory stays bounded (about 2^22 distances per block) while the work is O(N^2). That identity loses
-precision when the points lie far from the origin (|x|^2 is large, the difference is small), so both
-functions first move the points so that their mean is at the origin: distances do not change, and a
-cloud at offset 1e4 in float32 gets the same neighbours as at the origin. Coordinates so large that
-squared distances overflow float32 are searched in float64. No gradient flows through the choice of
-neighbours; callers recompute the distances of the chosen pairs when they need them.
+EdgeConv's kNN graph (Sec. 3.1, :mod:`cuboidlib.model`), normal estimation (:mod:`cuboidlib.normals`) and
+the Chamfer distance (:mod:`cuboidlib.distance`, :mod:`cuboidlib.metrics`) all call the three functions
+here. Squared distances are computed block by block as |x|^2 + |y|^2 - 2 x.y (bounded memory, O(N^2)
+work), after moving the points' mean to the origin, where that identity keeps its precision. No gradient
+flows through the choice of neighbours; callers recompute the distances of the chosen pairs.
 """
 
 from __future__ import annotations
@@ -55,16 +42,21 @@ def _centred(*sets: torch.Tensor) -> list[torch.Tensor]:
 def knn_indices(x: torch.Tensor, k: int, sorted: bool = False) -> torch.Tensor:
     """Indices of the k nearest neighbours of every point in its own cloud, the point itself included.
 
-    x: (B, N, C) coordinates or features (Euclidean distance in C dimensions). Returns (B, N, k) int64
-    indices into dim 1. Each row contains its own index; with ``sorted=True`` it comes first and the
-    others follow by increasing distance, otherwise the order is unspecified (faster). Example::
+    Args:
+        x: (B, N, C) coordinates or features (Euclidean distance in C dimensions).
+        k: neighbours per point, 1 <= k <= N.
+        sorted: put the point itself first and the others by increasing distance; False leaves the
+            order unspecified (faster).
+
+    Returns:
+        (B, N, k) int64 indices into dim 1. Non-finite rows (a diverged network) still get valid
+        indices, so the NaNs reach the outputs instead of raising an indexing error.
+
+    Example::
 
         >>> x = torch.tensor([[[0.0, 0, 0], [1, 0, 0], [3, 0, 0]]])
         >>> knn_indices(x, 2, sorted=True)
         tensor([[[0, 1], [1, 0], [2, 1]]])
-
-    Rows of non-finite features (a diverged network) still get valid indices, so the NaNs reach the
-    outputs, where training detects them, instead of an indexing error.
     """
     check_shape(x, ("B", "N", "C"), "x")
     batch, n, _ = x.shape
@@ -105,8 +97,17 @@ def _squared_distances(part: torch.Tensor, b: torch.Tensor, b_sq: torch.Tensor) 
 
 
 def nearest_index(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) -> torch.Tensor:
-    """Nearest point of b for every point of a, (B, Na) int64: the first result of :func:`nearest_indices`
-    without the work of the other direction. a (B, Na, C), b (B, Nb, C), both non-empty. Example::
+    """Nearest point of b for every point of a: the first half of :func:`nearest_indices`.
+
+    Args:
+        a: (B, Na, C) query points, Na >= 1.
+        b: (B, Nb, C) reference points, Nb >= 1.
+        chunk: points of a searched at once; None: about 2^24 distances per chunk.
+
+    Returns:
+        (B, Na) int64 indices into b.
+
+    Example::
 
         >>> nearest_index(torch.tensor([[[0.0, 0, 0], [2, 0, 0]]]), torch.tensor([[[1.9, 0, 0], [0.1, 0, 0]]]))
         tensor([[1, 0]])
@@ -122,11 +123,18 @@ def nearest_index(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) ->
 
 
 def nearest_indices(a: torch.Tensor, b: torch.Tensor, chunk: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Nearest point of b for every point of a, (B, Na) int64, and of a for every point of b, (B, Nb).
+    """Nearest point of b for every point of a, and of a for every point of b, in one pass.
 
-    a (B, Na, C), b (B, Nb, C), both non-empty. One pass over chunks of ``chunk`` points of a
-    (default: about 2^24 distances per chunk). Where several points of a are equally near a point of
-    b, any one of them may be returned. Example::
+    Args:
+        a: (B, Na, C) points, Na >= 1.
+        b: (B, Nb, C) points, Nb >= 1.
+        chunk: points of a searched at once; None: about 2^24 distances per chunk.
+
+    Returns:
+        ``(a_to_b, b_to_a)``: (B, Na) int64 indices into b and (B, Nb) int64 indices into a. Where
+        several points of a are equally near a point of b, any one of them may be returned.
+
+    Example::
 
         >>> a = torch.tensor([[[0.0, 0, 0], [2, 0, 0]]]); b = torch.tensor([[[1.9, 0, 0]]])
         >>> nearest_indices(a, b)

@@ -1,22 +1,10 @@
-"""The one normalisation convention used for every shape in cuboidlib.
+"""The one normalisation convention of cuboidlib: the paper's "unit scale" (Sec. 4.1) made precise.
 
-The paper trains on shapes that are "pre-aligned and normalized to the unit scale" (Sec. 4.1)
-without saying which unit scale. cuboidlib fixes it as follows, for procedural shapes, files a user
-brings and everything in between:
-
-* Axes (ShapeNet-like): **+y is up**, shapes **face +z**, **x** points to the side. Augmentation
-  rotates about the vertical (+y) axis. (The paper writes "around the z-axis" for its animal set,
-  whose up axis is z; the rotation is the same physical operation, about the up axis.)
-* Translation: the centre of the axis-aligned bounding box moves to the origin,
-  ``center = (min + max) / 2`` over the points.
-* Scale: uniform, so that the bounding-box **diagonal has length 1**,
-  ``scale = |max - min|`` (the diagonal length before normalisation).
-
-So ``normalized = (points - center) / scale`` and ``original = normalized * scale + center``.
-Normals are unchanged by this map (a translation and a positive uniform scale). A normalised shape
-fits in the cube ``[-0.5, 0.5]^3``; its bounding box is centred at the origin with diagonal 1.
-Keep ``(center, scale)`` to write results back in the user's original coordinates
-(:func:`denormalize`).
+Axes: +y is up, shapes face +z, x points to the side; augmentation rotates about +y. A shape is
+moved so that its axis-aligned bounding box is centred at the origin, then scaled uniformly so that
+the box diagonal is 1: ``normalized = (points - center) / scale`` with ``center = (min + max) / 2``
+and ``scale = |max - min|``, so it fits in ``[-0.5, 0.5]^3``. Normals do not change. Keep
+``(center, scale)`` to write results back in the original coordinates (:func:`denormalize`).
 """
 
 from __future__ import annotations
@@ -41,7 +29,14 @@ def _to_tensor(points, name: str) -> tuple[torch.Tensor, bool]:
 
 
 def bounding_box(points: torch.Tensor | np.ndarray) -> tuple:
-    """Axis-aligned bounding box ``(lo, hi)`` of ``points`` (N, 3) or (B, N, 3); each is (3,) or (B, 3)."""
+    """Axis-aligned bounding box of a point cloud.
+
+    Args:
+        points: (N, 3) or (B, N, 3) tensor or array, at least one point.
+
+    Returns:
+        ``(lo, hi)``: the smallest and largest coordinates, each (3,) or (B, 3), of the input's kind.
+    """
     t, is_numpy = _to_tensor(points, "points")
     if t.shape[-2] == 0:
         raise ValueError("points is empty (0 points); at least one point is required")
@@ -53,12 +48,11 @@ def normalize(points: torch.Tensor | np.ndarray) -> tuple:
     """Centre the bounding box at the origin and scale its diagonal to length 1.
 
     Args:
-        points: (N, 3) or (B, N, 3) tensor or array (each batch entry is normalised on its own).
+        points: (N, 3) or (B, N, 3) tensor or array; each batch entry is normalised on its own.
 
     Returns:
-        ``(normalized, center, scale)``: normalized has the shape of ``points``, center is (3,) or
-        (B, 3), scale is a scalar () or (B,), all of the input's kind (numpy in, numpy out) and dtype,
-        such that ``normalized = (points - center) / scale``.
+        ``(normalized, center, scale)`` with ``normalized = (points - center) / scale``: normalized
+        like ``points``, center (3,) or (B, 3), scale () or (B,); of the input's kind and dtype.
 
     Raises:
         ValueError: on a wrong shape, an empty cloud, NaN/inf values, or all points identical.
@@ -95,12 +89,12 @@ def denormalize(points: torch.Tensor | np.ndarray, center, scale) -> torch.Tenso
     """Map normalised points back to the original coordinates: ``points * scale + center``.
 
     Args:
-        points: (N, 3) or (B, N, 3) normalised points.
+        points: (N, 3) or (B, N, 3) normalised points, tensor or array.
         center: (3,) or (B, 3), as returned by :func:`normalize`.
-        scale: scalar or (B,), as returned by :func:`normalize`.
+        scale: () or (B,), positive, as returned by :func:`normalize`.
 
     Returns:
-        Points of the same shape and kind (numpy or torch) as ``points``.
+        Points of the shape and kind (numpy or torch) of ``points``.
     """
     t, is_numpy = _to_tensor(points, "points")
     c = as_float_tensor(np.asarray(center) if not isinstance(center, torch.Tensor) else center, "center")

@@ -1,27 +1,11 @@
-"""Normal estimation for point clouds that come without normals.
+"""Normals for point clouds that come without them (the distance of Eq. (5), Sec. 3.4.1, needs one per point).
 
-The paper's losses need a normal per point (the distance loss samples along it, Sec. 3.3.1) and its
-data come with normals; files a user brings often do not. :func:`estimate_normals` gives each point
-a unit normal in two steps:
-
-1. **PCA** (:func:`pca_normals`): the normal is the eigenvector of the smallest eigenvalue of the
-   (Gaussian-weighted) covariance of the point's ``k`` nearest neighbours (itself included). This
-   fixes the normal's line but not its sign.
-2. **Outward orientation** (:func:`orient_normals`), visibility based: from each point cast a fan
-   of 5 rays on each side of its tangent plane (along ``+n`` and tilted from it by 60 degrees
-   towards 4 tangent directions; the same about ``-n``) and find how far each ray runs before it
-   passes within ``ray_radius`` of another point (points near the point's own tangent plane never
-   block). Inside a closed surface the rays soon hit the opposite wall of the part; outside they
-   escape or travel to another part. The side whose rays run farther in total (each capped at the
-   bounding-box diagonal) is outward; on a tie the normal is turned away from the centroid. A
-   final vote over each point's tangent-plane neighbours flips isolated normals that disagree
-   with their surface patch.
-
-The outcome is judged with :func:`normal_errors` against known normals (``benchmarks/
-bench_shapes.py`` measures it on the procedural shapes). Points are (N, 3) numpy arrays or torch
-tensors (the result has the input's kind); the k-nearest-neighbour search is the exact, block-wise one
-of :mod:`cuboidlib.neighbors`, so memory is bounded and time O(N^2): fine for the few thousand points
-of a training shape; :func:`estimate_normals` refuses more than ``MAX_POINTS`` points (subsample first).
+:func:`estimate_normals` runs :func:`pca_normals` (each point's line: the smallest-eigenvalue
+eigenvector of its weighted kNN covariance) and then :func:`orient_normals` (each line's sign: the
+side of the tangent plane whose fan of rays runs farther before meeting another point is outward).
+:func:`normal_errors` scores normals against known ones (``benchmarks/bench_shapes.py``). Points are
+(N, 3) arrays or tensors, the result is of the input's kind; the exact kNN search of
+:mod:`cuboidlib.neighbors` costs O(N^2) time, hence the limit ``MAX_POINTS``.
 """
 
 from __future__ import annotations
@@ -59,50 +43,59 @@ def _out(t: torch.Tensor, is_numpy: bool):
 
 
 def pca_normals(points, k: int = 16, sigma_neighbour: int = 4):
-    """Unoriented unit normals (N, 3): smallest-eigenvalue eigenvector of each kNN covariance.
+    """Unoriented unit normals: the smallest-eigenvalue eigenvector of each point's kNN covariance.
 
-    Neighbour ``j`` of point ``i`` has the Gaussian weight ``exp(-|p_j - p_i|^2 / (2 sigma_i^2))``
-    with ``sigma_i`` the distance to its ``sigma_neighbour``-th nearest neighbour (0: equal weights).
-    The weights keep the far wall of a thin plate, which enters a sparse neighbourhood, from
-    tilting the normal.
+    Args:
+        points: (N, 3) array or tensor.
+        k: neighbours per point, the point itself included.
+        sigma_neighbour: neighbour j of point i has the weight ``exp(-|p_j - p_i|^2 / (2 sigma_i^2))``,
+            sigma_i the distance to the ``sigma_neighbour``-th nearest neighbour; 0 gives equal weights.
+            The weights keep the far wall of a thin plate from tilting the normal.
+
+    Returns:
+        (N, 3) unit normals of arbitrary sign, of the kind and dtype of ``points``.
     """
     p, is_numpy = _as_points(points)
     if not 0 <= sigma_neighbour < k:
         raise ValueError(f"sigma_neighbour must be in [0, k), got {sigma_neighbour} with k={k}")
     idx = _knn(p, k)
     nb = p[idx].double()  # (N, k, 3)
-    d2 = ((nb - nb[:, :1]) ** 2).sum(dim=-1)
+    d2 = ((nb - nb[:, :1]) ** 2).sum(dim=-1)  # (N, k) squared distances to the point itself
     if sigma_neighbour > 0:
         w = torch.exp(-d2 / (2 * d2[:, sigma_neighbour:sigma_neighbour + 1].clamp_min(1e-24)))
     else:
         w = torch.ones_like(d2)
     mean = (w[..., None] * nb).sum(dim=1, keepdim=True) / w.sum(dim=1)[:, None, None]
     c = nb - mean
-    cov = (w[..., None] * c).transpose(1, 2) @ c
-    _, vecs = torch.linalg.eigh(cov)
+    cov = (w[..., None] * c).transpose(1, 2) @ c  # (N, 3, 3) weighted covariances
+    _, vecs = torch.linalg.eigh(cov)  # (N, 3, 3), columns by increasing eigenvalue
     return _out(vecs[..., 0].to(p.dtype), is_numpy)
 
 
 def orient_normals(points, normals, ray_radius: float | None = None, max_occluders: int = 4096,
                    chunk_size: int = 64, vote_neighbours: int = 10, tilt: float = 60.0, far: float = 1.0,
                    seed: int = 0):
-    """Flip normals (N, 3) to point outward, by ray visibility (see the module docstring).
+    """Flip normals to point outward, by ray visibility.
+
+    From each point a fan of 5 rays leaves each side of its tangent plane (the normal and 4 rays
+    tilted from it by ``tilt``); the side whose rays run farther in total before passing near
+    another point is outward (ties: away from the centroid). A vote of tangent-plane neighbours then
+    flips isolated normals that disagree with their surface patch.
 
     Args:
-        points: (N, 3) points; normals: (N, 3) unit normals of any sign.
-        ray_radius: a point blocks a ray when it lies within this distance of it; default 1.2 x the
-            median distance from a point to its 3rd nearest neighbour.
-        max_occluders: rays are tested against at most this many points (a seeded random subset
-            of larger clouds), bounding time and memory.
-        chunk_size: rays per block (memory ~ chunk_size * max_occluders).
-        vote_neighbours: neighbours in the final tangent-plane vote (0 disables the vote).
-        tilt: angle in degrees between the normal and the 4 tilted rays of each fan.
-        far: rays are capped at ``far`` x the bounding-box diagonal (a ray that escapes counts
-            this much).
+        points: (N, 3) array or tensor.
+        normals: (N, 3) unit normals of any sign.
+        ray_radius: a point within this distance of a ray blocks it; None: 1.2 x the median distance
+            from a point to its 3rd nearest neighbour.
+        max_occluders: rays are tested against at most this many points (a seeded random subset).
+        chunk_size: points whose rays are traced at once (memory ~ chunk_size * max_occluders).
+        vote_neighbours: neighbours in the final vote (0 skips the vote).
+        tilt: angle in degrees between the normal and the 4 tilted rays.
+        far: rays are capped at ``far`` x the bounding-box diagonal (what an escaping ray counts).
         seed: seed of the occluder subset.
 
     Returns:
-        The normals with their signs chosen, same kind (numpy/torch) as ``normals``.
+        (N, 3) normals with their signs chosen, of the kind of ``normals``.
     """
     p, _ = _as_points(points)
     n, is_numpy = _as_points(normals, "normals")
@@ -137,7 +130,7 @@ def orient_normals(points, normals, ray_radius: float | None = None, max_occlude
         d2 = qq[None, :] - 2 * pc @ q.T + (pc * pc).sum(dim=1, keepdim=True)  # |q - p|^2, (c, M)
         sn = nc @ q.T - (nc * pc).sum(dim=1, keepdim=True)  # offset from the tangent plane, (c, M)
         t = dc @ q.T - (dc * pc[:, None, :]).sum(dim=-1, keepdim=True)  # along each ray, (c, 10, M)
-        hit = (d2[:, None, :] - t * t < rho2) & (t > 0)
+        hit = (d2[:, None, :] - t * t < rho2) & (t > 0)  # (c, 10, M): q within rho of the ray, ahead
         # A blocker must also lie well off the point's tangent plane (more than 30 degrees), on the
         # side of the ray, so that neighbours on the point's own surface never block its rays.
         off_plane = sn * sn > dead2 + (d2 - sn * sn) / 3
@@ -162,9 +155,18 @@ def orient_normals(points, normals, ray_radius: float | None = None, max_occlude
 
 
 def estimate_normals(points, k: int = 16, orient: bool = True):
-    """Unit normals (N, 3) for points (N, 3): PCA over ``k`` neighbours, oriented outward.
+    """Unit normals for a point cloud: :func:`pca_normals` over ``k`` neighbours, then :func:`orient_normals`.
 
-    With ``orient=False`` the signs are those of the eigen-solver (arbitrary).
+    Args:
+        points: (N, 3) array or tensor, 3 <= N <= ``MAX_POINTS``, not all identical.
+        k: neighbours per point, the point itself included.
+        orient: choose outward signs; False keeps the eigen-solver's arbitrary signs.
+
+    Returns:
+        (N, 3) unit normals, of the kind and dtype of ``points``.
+
+    Raises:
+        ValueError: for more than ``MAX_POINTS`` points (subsample first, or provide normals).
     """
     p, is_numpy = _as_points(points)
     if p.shape[0] < 3:
@@ -184,10 +186,15 @@ def estimate_normals(points, k: int = 16, orient: bool = True):
 
 
 def normal_errors(estimated, truth) -> tuple:
-    """Per-point errors of estimated normals (N, 3) against true unit normals (N, 3).
+    """Per-point errors of estimated normals against true ones.
 
-    Returns ``(angle_deg, flipped)``: the unoriented angle in degrees between the two lines
-    (0..90, judges PCA) and a boolean "points the wrong way" (``dot < 0``, judges orientation).
+    Args:
+        estimated: (N, 3) normals (normalised here).
+        truth: (N, 3) true normals.
+
+    Returns:
+        ``(angle_deg, flipped)``, each (N,), of the kind of ``estimated``: the angle in degrees
+        between the two lines, in [0, 90] (judges PCA), and bool ``dot < 0`` (judges orientation).
     """
     e, is_numpy = _as_points(estimated, "estimated")
     t, _ = _as_points(truth, "truth")

@@ -1,28 +1,16 @@
 """Publishing a training run as a ready-to-use checkpoint with its evaluation card.
 
-``cuboidlib train ... --release data_samples/checkpoints/chair.pt`` ends by calling
-:func:`publish_run`: it copies the run's model-selection checkpoint (``best.pt``, chosen on the
-validation split) without the optimizer state, scores it on the **test** split together with the
-k-means + oriented-box baseline at the same number of boxes (:mod:`cuboidlib.evaluation`), and
-writes a JSON card beside it (``chair.json``) holding
+``cuboidlib train ... --release data_samples/checkpoints/chair.pt`` ends with :func:`publish_run`: the run's
+``best.pt`` without optimizer state, scored on the test split beside the k-means + oriented-box baseline, and
+a JSON card beside it (``chair.json``) with the keys
 
-* ``command``: the command that trained and published it, ``git_commit`` of the source tree;
-* ``machine``: CPU count, training processes (DDP world size), torch threads per process (the
-  config's ``num_threads``, else the publishing process's), torch version, the config's device, and
-  ``gpu``: the name of the GPU the released network was scored on (None on the CPU);
-* ``training``: optimiser steps run, the selected step, wall-clock seconds of the whole run, and the
-  validation curve (loss, N_AC, mIoU by label transfer within the validation split, box distance and
-  saturation at every validation), with its values at 15, 30 and 60 minutes;
-* ``initialised_from`` (runs that started from another run's weights, ``init_from``): that checkpoint
-  and, when its run folder is still there, its config and the same training summary, so a card of a
-  two-stage recipe holds both stages;
+* ``command``, ``git_commit``: how it was trained and published;
+* ``machine``: CPUs, training processes, torch threads, torch and Python versions, device, ``gpu`` (or None);
+* ``training``: steps, selected step, seconds, the validation curve and its values at :data:`CURVE_MARKS`;
+* ``initialised_from`` (two-stage recipes): the first stage's checkpoint, config and training summary;
 * ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
-* ``translation_head`` (networks trained with centroid centres only, see :func:`fit_translation_head`):
-  how well the refitted translation head predicts the centroids on the validation split;
-* ``test``: the metrics of the network and of the baseline (:func:`cuboidlib.evaluation.evaluate_model`)
-  and the printed table with its Chamfer convention.
-
-:func:`read_card` reads such a card back for notebooks and README tables.
+* ``translation_head`` (centroid-centre networks only): the refit of :func:`fit_translation_head`;
+* ``test``: the metrics of network and baseline (:func:`cuboidlib.evaluation.evaluate_model`) and their table.
 """
 
 from __future__ import annotations
@@ -52,13 +40,26 @@ CARD_FORMAT = "cuboidlib-checkpoint-card"
 
 
 def card_path(checkpoint: str | os.PathLike) -> Path:
-    """The JSON card that belongs to a checkpoint file: ``chair.pt`` -> ``chair.json``."""
+    """The JSON card that belongs to a checkpoint file: ``chair.pt`` -> ``chair.json``.
+
+    Args:
+        checkpoint: the checkpoint path.
+
+    Returns:
+        The card's path.
+    """
     return Path(checkpoint).with_suffix(".json")
 
 
 def git_commit(folder: str | os.PathLike | None = None) -> str | None:
-    """The commit of the git work tree holding ``folder`` (default: this package), with ``+dirty``
-    when tracked files have uncommitted changes; None outside a git work tree."""
+    """The commit of the git work tree holding ``folder``.
+
+    Args:
+        folder: a folder in the work tree (default: this package's).
+
+    Returns:
+        The commit hash, with ``+dirty`` when tracked files have uncommitted changes; None outside a work tree.
+    """
     where = Path(folder) if folder is not None else Path(__file__).resolve().parent
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, check=True)
@@ -100,7 +101,15 @@ def _training_summary(run_dir: Path, selected_step: int | None, selection: str) 
 
 
 def curve_marks(curve: list[dict], seconds: float) -> dict:
-    """The last validation at or before each of :data:`CURVE_MARKS` minutes that a run of ``seconds`` reached."""
+    """The last validation at or before each of :data:`CURVE_MARKS` minutes that the run reached.
+
+    Args:
+        curve: validation entries with their ``seconds``, in order.
+        seconds: the run's length in seconds.
+
+    Returns:
+        ``{"15": entry, ...}`` for the marks the run lasted (about) that long.
+    """
     marks = {}
     for minutes in CURVE_MARKS:
         before = [e for e in curve if e["seconds"] <= 60 * minutes]
@@ -112,9 +121,12 @@ def curve_marks(curve: list[dict], seconds: float) -> dict:
 def training_curve(card: dict) -> tuple[list[dict], float, list[float]]:
     """The validation curve of all the stages a card records (``initialised_from``, then its own run).
 
-    Returns (curve, total seconds, the seconds at which each later stage started); every entry of the
-    curve is a validation of :func:`_training_summary` with ``seconds`` counted from the start of the
-    first stage and ``stage`` (0, 1, ...).
+    Args:
+        card: a card of :func:`read_card`.
+
+    Returns:
+        ``(curve, total seconds, start seconds of each later stage)``; every curve entry is a validation
+        with ``seconds`` counted from the start of the first stage, and its ``stage`` (0, 1, ...).
     """
     earlier = card.get("initialised_from", {})
     stages = ([earlier["training"]] if "training" in earlier else []) + [card["training"]]
@@ -142,8 +154,8 @@ def _features_and_centroids(model: CuboidAbstractionNet, points: torch.Tensor, n
             chunk_normals = None if normals is None else normals[start:start + batch_size].to(device)
             out = model(chunk, chunk_normals, sample_latent=False)
             exists = out.exist_probs > 0.5
-            features.append(out.cuboid_features[exists])
-            centroids.append(allocation_weighted_centers(out.W, chunk)[exists])
+            features.append(out.cuboid_features[exists])  # (K, C): the existing cuboids of the chunk
+            centroids.append(allocation_weighted_centers(out.W, chunk)[exists])  # (K, 3)
     finally:
         model.train(was_training)
     return torch.cat(features), torch.cat(centroids)
@@ -160,31 +172,39 @@ def _head_rms(model: CuboidAbstractionNet, features: torch.Tensor, centroids: to
 
 def translation_head_error(model: CuboidAbstractionNet, points: torch.Tensor,
                            normals: torch.Tensor | None = None) -> float:
-    """RMS distance between the predicted translations t_m and the allocation centroids c_m, over the
-    existing cuboids of ``points`` (S, N, 3) (network in evaluation mode, z = mu; ``normals`` (S, N, 3)
-    for a network that reads them, ``ModelConfig.input_normals`` not "none")."""
+    """RMS distance between the predicted translations t_m and the allocation centroids c_m.
+
+    Args:
+        model: the network, run in evaluation mode with z = mu.
+        points: (S, N, 3) shapes; their existing cuboids are compared.
+        normals: (S, N, 3), for a network that reads them (``ModelConfig.input_normals`` not "none").
+
+    Returns:
+        The RMS distance, in the shapes' units.
+    """
     return _head_rms(model, *_features_and_centroids(model, points, normals))
 
 
 def fit_translation_head(model: CuboidAbstractionNet, points: torch.Tensor, ridge: float = 1e-5,
                          normals: torch.Tensor | None = None) -> None:
-    """Fit the translation head of D_cp so that t_m predicts the allocation centroid c_m (in place).
+    """Fit the translation head t_m = tanh(A f^c_m + b) of D_cp to the allocation centroids c_m, in place.
 
-    A network trained with the authors' centroid centres (``LossConfig(centers_from_allocation=True)``)
-    places every cuboid at c_m = sum_n W_mn p_n / (sum_n W_mn + 1) in its losses, so its translation head
-    t_m = tanh(A f^c_m + b) never receives a gradient. Abstracting a point cloud can use the centroids, but
-    decoding a latent code alone (generation, interpolation, Sec. 4.4) has no points and needs t_m. With
-    every other weight fixed, the head is linear before the tanh, so it is fitted in closed form: ridge
-    least squares of atanh(c_m) on [f^c_m, 1] over the existing cuboids (existence > 0.5) of ``points``
-    (S, N, 3), the training shapes (with their ``normals`` (S, N, 3) for a network with
-    ``ModelConfig.input_normals`` not "none"). The authors' code has a loss term for this with weight 0.
+    A network trained with centroid centres (``LossConfig(centers_from_allocation=True)``) never trains this
+    head, yet decoding a code alone (generation, interpolation, Sec. 4.4) needs it. The fit is closed-form
+    ridge least squares of atanh(c_m) on [f^c_m, 1] over the existing cuboids (existence > 0.5).
+
+    Args:
+        model: the network; only the head changes.
+        points: (S, N, 3) training shapes.
+        ridge: the ridge weight, times the number of cuboids.
+        normals: (S, N, 3), for a network that reads them (``ModelConfig.input_normals`` not "none").
     """
     features, centroids = _features_and_centroids(model, points, normals)
     if len(features) == 0:
         raise ValueError("no cuboid exists on these shapes; the translation head cannot be fitted")
     x = torch.cat([features, torch.ones(len(features), 1, dtype=features.dtype, device=features.device)], dim=1)
     y = torch.atanh(centroids.clamp(-0.999, 0.999))
-    x, y = x.double(), y.double()
+    x, y = x.double(), y.double()  # (K, C + 1), (K, 3)
     gram = x.T @ x + ridge * len(x) * torch.eye(x.shape[1], dtype=x.dtype, device=x.device)
     solution = torch.linalg.solve(gram, x.T @ y)  # (C + 1, 3)
     head = model.abstraction.D_cp.translation
@@ -214,10 +234,16 @@ def publish_run(
     command: str,
     seed: int = 0,
 ) -> dict:
-    """Copy ``run_dir/best.pt`` to ``dest`` (weights + config only), evaluate it on the test split
-    with the baseline, write the card ``card_path(dest)`` and return it (a dict of JSON types).
+    """Copy ``run_dir/best.pt`` to ``dest`` (weights and config), score it on the test split and write its card.
 
-    seed: seed of the surface samples and of the label-transfer shapes of the evaluation.
+    Args:
+        run_dir: the training run folder.
+        dest: the released ``.pt`` file; the card goes to ``card_path(dest)``.
+        command: the command line recorded in the card.
+        seed: seed of the evaluation's surface samples and label-transfer shapes.
+
+    Returns:
+        The card, a dict of JSON types (module docstring).
     """
     run_dir, dest = Path(run_dir), Path(dest)
     if dest.suffix != ".pt":
@@ -275,7 +301,17 @@ def publish_run(
 
 
 def read_card(checkpoint: str | os.PathLike) -> dict:
-    """The JSON card of a released checkpoint (``chair.pt`` or ``chair.json``)."""
+    """The JSON card of a released checkpoint.
+
+    Args:
+        checkpoint: ``chair.pt`` or ``chair.json``.
+
+    Returns:
+        The card dict (module docstring).
+
+    Raises:
+        FileNotFoundError: the checkpoint has no card.
+    """
     path = card_path(checkpoint)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no checkpoint card (written by 'cuboidlib train --release')")
@@ -288,12 +324,15 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
 def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     """A Markdown table of released checkpoints, one row per card, for README files.
 
-    Columns: category, M, training (steps, minutes; "a + b" for a network trained in two stages; the
-    number of training processes), the
-    network's test Chamfer distance (x 1000,
-    convention of the first one in the card), normal consistency, mIoU (%), and the same for the
-    baseline at the same number of boxes; the network's N_AC and box distance ("-" on a card scored
-    before the box distance existed).
+    Columns: checkpoint, M, training (steps, minutes, "a + b" for two stages; processes), test shapes, then
+    network / baseline Chamfer distance x 1000 (the card's first convention), normal consistency and mIoU %,
+    and the network's N_AC and box distance ("-" on a card scored before the box distance existed).
+
+    Args:
+        checkpoints: the released ``.pt`` files (or their cards).
+
+    Returns:
+        The table, lines joined by newlines.
     """
     rows = ["| checkpoint | M | training | test shapes | CD x1000: network / baseline | NC: network / baseline "
             "| mIoU %: network / baseline | N_AC | box distance |",

@@ -1,51 +1,13 @@
 """Procedural, part-labelled shape collections that stand in for the paper's data (Sec. 4).
 
-The paper trains one network per category on ShapeNet airplanes, chairs and tables and on a set of
-four-legged animals, and scores segmentation against ShapeNet part labels (Sec. 4.2). Nothing can
-be downloaded here, so :func:`make_collection` builds collections that behave like those: each
-shape is a union of analytic parts (:mod:`cuboidlib.solids`: boxes, rounded boxes, tilted boxes,
-swept wing boxes, cylinders, discs, capsules, ellipsoids), sampled area-uniformly on the outer
-surface of the union with outward unit normals, every point labelled with a ShapeNet-part name.
-
-Categories, part labels (``PART_NAMES``, the label is an index into the tuple) and optional parts:
-
-* **chair** (back, seat, leg, arm): seat box or rounded box; back solid or slatted (horizontal
-  slats or vertical spindles), straight or tilted backwards; legs: four (square or round, sometimes
-  splayed), a pedestal with a 4/5-spoke star base (optional casters) or two sled runners; optional
-  armrests (rests and their supports are "arm"); optional stretchers between four legs ("leg").
-* **table** (top, leg): rectangular (box or rounded) or round top; four legs, a pedestal (disc or
-  cross-foot base) or trestle ends (post + foot + cleat); optional shelf, stretchers, apron boards
-  or a trestle stretcher. As in the paper (Sec. 4.2, after BSP-Net), every support is "leg".
-* **airplane** (body, wing, tail, engine): fuselage capsule, or cylinder with ellipsoidal nose and
-  tail cone; tapered swept wings (low, mid or high, with dihedral); horizontal stabiliser and fin
-  (conventional or T-tail); 0, 2 or 4 engines (nacelle + pylon, "engine") under the wings, or 2
-  engines on the rear fuselage (always with a T-tail).
-* **animal** (body, head, leg, tail): ellipsoid body; four legs of two capsules each (bent at the
-  knee); neck capsule, head and snout ellipsoids, optional ears; tail of one or two capsules. Body
-  plans: standard, long-neck, low-long, stocky. **The neck is labelled "head"** (head = neck + head).
-
-Every shape records a ``structure`` string of its optional choices (e.g. chair
-``"legs4+stretchers+arms+slatted-back+tilted"``) and a coarser ``structure_id``, an index into
-``STRUCTURES[category]`` meant for clustering:
-
-* chair: legs type x armrests (6 groups);
-* table: support x top shape (legs4/pedestal x rect/round, plus trestle: 5 groups);
-* airplane: engine count x T-tail (6 groups);
-* animal: body plan (4 groups).
-
-Choices are drawn with probabilities that give every coarse group at least ~7 % of a collection.
-
-Conventions (:mod:`cuboidlib.normalization`): +y up, shapes face +z (chair fronts, airplane noses,
-animal heads), x to the side; every shape is normalised so that the bounding box of its sampled
-points is centred at the origin with diagonal 1.
-
-Determinism: shape ``i`` of a collection is generated from its own random generator seeded with
-``(seed, category index, i)``, so collections are repeatable and a prefix of a larger collection
-equals the smaller collection. Collections are cached on disk (npz, no pickle) keyed by category,
-size, points per shape, seed and :data:`GENERATOR_VERSION`.
-
-Why one file: the four categories' generators share their part vocabulary, sampling and
-normalisation; a shape's parts are only meaningful together with them.
+The paper uses ShapeNet chairs, tables and airplanes and a set of four-legged animals, scored against
+part labels (Sec. 4.2). Nothing can be downloaded here, so :func:`make_collection` builds look-alikes:
+each shape is a union of analytic solids (:mod:`cuboidlib.solids`) sampled area-uniformly on its outer
+surface, with an outward normal and a part label (``PART_NAMES``) per point. Each shape also records
+its optional parts (``structure``) and a coarse group for clustering (``structure_id``, an index into
+``STRUCTURES``). Shapes are normalised as in :mod:`cuboidlib.normalization`. Shape i of a collection
+comes from a generator seeded with (seed, category, i), so a prefix of a larger collection equals the
+smaller one; collections are cached as npz, keyed by their arguments and :data:`GENERATOR_VERSION`.
 """
 
 from __future__ import annotations
@@ -93,6 +55,8 @@ __all__ = [
 
 CATEGORIES: tuple[str, ...] = ("chair", "table", "airplane", "animal")
 
+# Part labels index these tuples. As in the paper (Sec. 4.2, after BSP-Net) every table support is
+# "leg"; an animal's neck is labelled "head".
 PART_NAMES: dict[str, tuple[str, ...]] = {
     "chair": ("back", "seat", "leg", "arm"),
     "table": ("top", "leg"),
@@ -100,6 +64,8 @@ PART_NAMES: dict[str, tuple[str, ...]] = {
     "animal": ("body", "head", "leg", "tail"),
 }
 
+# Coarse groups for clustering: chair legs type x armrests, table support x top shape (and trestle),
+# airplane engine count x T-tail, animal body plan. Every group gets at least ~7 % of a collection.
 STRUCTURES: dict[str, tuple[str, ...]] = {
     "chair": ("legs4", "legs4+arms", "pedestal", "pedestal+arms", "sled", "sled+arms"),
     "table": ("legs4-rect", "legs4-round", "pedestal-rect", "pedestal-round", "trestle"),
@@ -151,6 +117,9 @@ def _wing(root_le_z: float, chord: float, taper: float, span: float, sweep: floa
 
 
 # --------------------------------------------------------------------------------------- chair
+# Seat box or rounded box; back solid or slatted (horizontal slats or vertical spindles), maybe tilted
+# backwards; four legs (square or round, maybe splayed, maybe with stretchers), a pedestal on a star
+# of 4 or 5 spokes (maybe with casters) or two sled runners; optional armrests with their supports.
 
 
 def _chair(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
@@ -288,6 +257,8 @@ def _chair_arms(rng, W, D, H, top_y, parts, ARM) -> None:
 
 
 # --------------------------------------------------------------------------------------- table
+# Rectangular (box or rounded) or round top; four legs, a pedestal (disc or cross-foot base) or
+# trestle ends (post + foot + cleat); optional shelf, stretchers, apron boards or trestle stretcher.
 
 
 def _table(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
@@ -442,6 +413,12 @@ def _table_trestle(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> 
         parts.append(box([0, sh, 0], [xe, ss / 2, ss / 2], label=LEG))
 
 
+# ------------------------------------------------------------------------------------ airplane
+# Fuselage capsule, or cylinder with an ellipsoidal nose and a tail cone; tapered swept wings (low,
+# mid or high, with dihedral); stabiliser and fin (conventional or T-tail); 0, 2 or 4 engines
+# (nacelle + pylon) under the wings, or 2 on the rear fuselage (always with a T-tail).
+
+
 def _airplane_tail(rng, fin_te: float, rf: float, t_tail: bool, parts: list, TAIL: int) -> None:
     """The tail: a fin (span along +y, root inside the fuselage, trailing edge at z = fin_te) and a
     horizontal stabiliser, on top of the fin (T-tail) or at the fuselage."""
@@ -537,6 +514,9 @@ def _airplane(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
 
 
 # -------------------------------------------------------------------------------------- animal
+# Ellipsoid body; four legs of two capsules each (bent at the knee); neck capsule, head and snout
+# ellipsoids, optional ears; tail of one or two capsules. Body plans: standard, long-neck, low-long,
+# stocky.
 
 _ANIMAL_PLANS = {
     # body half-height, half-width, hip height, leg radius, neck length, neck angle (deg),
@@ -635,9 +615,16 @@ def _shape_rng(category: str, index: int, seed: int) -> np.random.Generator:
 def build_parts(category: str, index: int, seed: int = 0) -> tuple[list[Solid], str, int]:
     """The parts of shape ``index`` of a collection, before sampling and normalisation.
 
-    Returns ``(solids, structure, structure_id)``: the analytic solids (each with its part label, an
-    index into ``PART_NAMES[category]``) in generator units (metres), the structure string and the
-    coarse structure id (an index into ``STRUCTURES[category]``).
+    Args:
+        category: one of :data:`CATEGORIES`.
+        index: the shape's index in the collection, >= 0.
+        seed: the collection's seed, >= 0.
+
+    Returns:
+        ``(solids, structure, structure_id)``: the solids in generator units (metres), each labelled
+        with an index into ``PART_NAMES[category]``; the structure string, e.g.
+        ``"legs4+stretchers+arms+slatted-back+tilted"``; the coarse group, an index into
+        ``STRUCTURES[category]``.
     """
     _check_category(category)
     solids, structure, coarse = _GENERATORS[category](_shape_rng(category, index, seed))
@@ -668,13 +655,15 @@ class Shape:
 
     @property
     def part_names(self) -> tuple[str, ...]:
+        """The names of the part labels, ``PART_NAMES[category]``."""
         return PART_NAMES[self.category]
 
     def mesh(self) -> trimesh.Trimesh:
         """The parts' meshes concatenated (not boolean-merged), vertices coloured by part label.
 
-        The face attribute ``label`` holds each face's part label. (Vertex rather than face
-        colours: parts share no vertices, and trimesh exports vertex colours without scipy.)
+        Returns:
+            A ``trimesh.Trimesh`` whose face attribute ``label`` holds each face's part label. (Vertex
+            colours, because trimesh exports them without scipy.)
         """
         meshes = [p.mesh() for p in self.parts]
         mesh = trimesh.util.concatenate(meshes)
@@ -696,10 +685,17 @@ def _sample_shape(category: str, index: int, seed: int, n_points: int):
 
 
 def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 0) -> Shape:
-    """Generate shape ``index`` of the collection ``(category, seed)`` with ``n_points`` points.
+    """Generate shape ``index`` of the collection ``(category, seed)``, with its analytic parts.
 
-    Equal to entry ``index`` of ``make_collection(category, n, n_points, seed)`` for any ``n > index``,
-    and additionally carries the analytic parts (for meshes and exact inside/outside tests).
+    Args:
+        category: one of :data:`CATEGORIES`.
+        index: the shape's index in the collection.
+        n_points: N, points sampled on its surface.
+        seed: the collection's seed.
+
+    Returns:
+        A :class:`Shape` equal to entry ``index`` of ``make_collection(category, n, n_points, seed)``
+        for any ``n > index``, plus its parts (for meshes and exact inside/outside tests).
     """
     _check_category(category)
     if n_points < 1:
@@ -740,17 +736,26 @@ class ShapeCollection:
 
     @property
     def part_names(self) -> tuple[str, ...]:
+        """The names of the part labels, ``PART_NAMES[category]``."""
         return PART_NAMES[self.category]
 
     @property
     def structure_names(self) -> tuple[str, ...]:
+        """The names of the coarse structure groups, ``STRUCTURES[category]``."""
         return STRUCTURES[self.category]
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the collection to an ``.npz`` file (no pickled objects) and return its path."""
+        """Write the collection to an ``.npz`` file (no pickled objects), atomically.
+
+        Args:
+            path: the file to write; missing folders are created.
+
+        Returns:
+            The path written.
+        """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".npz", delete=False) as f:
@@ -763,7 +768,18 @@ class ShapeCollection:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "ShapeCollection":
-        """Read a collection written by :meth:`save`."""
+        """Read a collection written by :meth:`save`.
+
+        Args:
+            path: an ``.npz`` file.
+
+        Returns:
+            The :class:`ShapeCollection`.
+
+        Raises:
+            FileNotFoundError: when ``path`` is not a file.
+            ValueError: when the file is unreadable or does not hold a valid collection.
+        """
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such collection file")
@@ -814,16 +830,16 @@ def make_collection(
 
     Args:
         category: "chair", "table", "airplane" or "animal".
-        n_shapes: number of shapes S.
-        n_points: points per shape N.
-        seed: collection seed (shape i uses the generator seeded with ``(seed, category, i)``).
-        cache_dir: cache folder (default :func:`default_cache_dir`); the file name encodes
+        n_shapes: S, the number of shapes.
+        n_points: N, points per shape.
+        seed: the collection's seed (shape i's generator is seeded with ``(seed, category, i)``).
+        cache_dir: cache folder; None: :func:`default_cache_dir`. The file name encodes
             ``(category, n_shapes, n_points, seed, GENERATOR_VERSION)``.
-        use_cache: read and write the cache (False: always generate, write nothing).
+        use_cache: read and write the cache; False always generates and writes nothing.
         progress: show a tqdm progress bar while generating.
 
     Returns:
-        A :class:`ShapeCollection` with points (S, N, 3), normals (S, N, 3), labels (S, N).
+        A :class:`ShapeCollection`: points (S, N, 3) and normals (S, N, 3) float32, labels (S, N) int64.
     """
     _check_category(category)
     if n_shapes < 1 or n_points < 1:
@@ -861,11 +877,17 @@ def make_collection(
 
 def plot_shapes(shapes: Sequence, titles: Sequence[str] | None = None, ncols: int = 3, point_size: float = 2.0,
                 figsize_per_plot: float = 2.6):
-    """Matplotlib figure of part-labelled point clouds, one 3D scatter per shape.
+    """Matplotlib figure of part-labelled point clouds: one 3D scatter per shape, +y up, front (+z) to the viewer.
 
-    ``shapes`` holds :class:`Shape` objects or ``(points (N, 3), labels (N,), category)`` tuples.
-    The y-up convention is shown with y as the plot's vertical axis and the shape's front (+z)
-    turned towards the viewer. Each subplot's legend names the category's parts.
+    Args:
+        shapes: :class:`Shape` objects or ``(points (N, 3), labels (N,), category)`` tuples.
+        titles: optional title per shape.
+        ncols: subplots per row.
+        point_size: marker size.
+        figsize_per_plot: inches per subplot side.
+
+    Returns:
+        The ``matplotlib.figure.Figure``, a legend naming the parts at each run of one category.
     """
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D

@@ -1,23 +1,11 @@
-"""Analytic solids that the procedural shapes are assembled from.
+"""Analytic solids that the procedural shapes of :mod:`cuboidlib.shapes` are assembled from.
 
-Every solid can
-
-* report its exact surface **area** (the ellipsoid's to about 1e-4 relative error),
-* **sample** points area-uniformly on its surface together with the outward unit normals,
-* evaluate a **signed distance** ``sdf(x)`` (negative inside, zero on the surface, positive
-  outside; exact for boxes, cylinders, capsules and rounded boxes, sign-correct and approximate for
-  the ellipsoid and, outside, for the convex hexahedron),
-* be **mapped** by the normalisation ``x -> (x - center) / scale`` (see
-  :mod:`cuboidlib.normalization`), and
-* build a triangle **mesh** (``trimesh.Trimesh``) for viewing or export.
-
-A solid carries an integer ``label`` (the part label of every point sampled on it). Points are
-float64 arrays of shape (n, 3); a solid's local frame is given by a centre ``c`` (3,) and a rotation
-matrix ``R`` (3, 3) whose columns are the local axes, so ``world = c + local @ R.T``.
-
-:func:`sample_union_surface` samples the outer surface of a union of solids: it draws area-weighted
-candidates from every solid and rejects those strictly inside another solid. Solids that touch must
-overlap (not merely share a face), so that no internal contact face survives the rejection.
+Every :class:`Solid` reports its surface area, samples area-uniform surface points with outward
+unit normals, evaluates a signed distance (negative inside), maps itself by the normalisation
+``x -> (x - center) / scale`` of :mod:`cuboidlib.normalization`, and builds a ``trimesh.Trimesh``.
+A solid carries the integer part ``label`` of its points. Points are float64 arrays (n, 3); a local
+frame is a centre ``c`` (3,) and a rotation ``R`` (3, 3) whose columns are the local axes, so
+``world = c + local @ R.T``. :func:`sample_union_surface` samples the outer surface of a union.
 """
 
 from __future__ import annotations
@@ -46,25 +34,53 @@ __all__ = [
 
 
 def rotation_x(angle: float) -> np.ndarray:
-    """(3, 3) rotation by ``angle`` radians about +x (right-handed)."""
+    """Rotation about +x (right-handed).
+
+    Args:
+        angle: in radians.
+
+    Returns:
+        (3, 3) float64 rotation matrix.
+    """
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def rotation_y(angle: float) -> np.ndarray:
-    """(3, 3) rotation by ``angle`` radians about +y (right-handed)."""
+    """Rotation about +y (right-handed).
+
+    Args:
+        angle: in radians.
+
+    Returns:
+        (3, 3) float64 rotation matrix.
+    """
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def rotation_z(angle: float) -> np.ndarray:
-    """(3, 3) rotation by ``angle`` radians about +z (right-handed)."""
+    """Rotation about +z (right-handed).
+
+    Args:
+        angle: in radians.
+
+    Returns:
+        (3, 3) float64 rotation matrix.
+    """
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def frame_from_axis(axis: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation whose third column is the unit vector along ``axis`` (3,)."""
+    """A frame whose local z axis points along ``axis``.
+
+    Args:
+        axis: (3,) non-zero vector.
+
+    Returns:
+        (3, 3) rotation whose third column is the unit vector along ``axis``.
+    """
     a = np.asarray(axis, dtype=float)
     a = a / np.linalg.norm(a)
     helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -91,23 +107,50 @@ _SPHERE_LATTICE = _fibonacci_sphere(8192)
 
 
 class Solid:
-    """Base class: a closed solid with a part ``label``; see the module docstring for the contract."""
+    """Base class: a closed solid with a part ``label``; subclasses implement the methods below."""
 
     label: int
 
     def area(self) -> float:
+        """Surface area (the ellipsoid's to about 1e-4 relative error)."""
         raise NotImplementedError
 
     def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """``n`` area-uniform surface points (n, 3) and their outward unit normals (n, 3)."""
+        """Area-uniform points on the surface.
+
+        Args:
+            n: number of points.
+            rng: numpy random generator.
+
+        Returns:
+            ``(points, normals)``: (n, 3) surface points and their (n, 3) outward unit normals.
+        """
         raise NotImplementedError
 
     def sdf(self, x: np.ndarray) -> np.ndarray:
-        """Signed distance (n,) of points ``x`` (n, 3): < 0 inside, 0 on the surface, > 0 outside."""
+        """Signed distance: < 0 inside, 0 on the surface, > 0 outside.
+
+        Exact for cylinders, capsules, rounded boxes and inside a hexahedron; for the ellipsoid and
+        outside a hexahedron (boxes included) only the sign and the zero set are exact.
+
+        Args:
+            x: (n, 3) points.
+
+        Returns:
+            (n,) signed distances.
+        """
         raise NotImplementedError
 
     def mapped(self, center: np.ndarray, scale: float) -> "Solid":
-        """The same solid after ``x -> (x - center) / scale``."""
+        """The same solid after ``x -> (x - center) / scale``.
+
+        Args:
+            center: (3,) translation, as from :func:`cuboidlib.normalization.normalize`.
+            scale: positive scale.
+
+        Returns:
+            A new solid of the same type and label.
+        """
         raise NotImplementedError
 
     def mesh(self) -> trimesh.Trimesh:
@@ -145,11 +188,12 @@ _HEX_TRIS = np.concatenate([_HEX_QUADS[:, [0, 1, 2]], _HEX_QUADS[:, [0, 2, 3]]])
 
 
 class Hexahedron(Solid):
-    """A convex solid with the topology of a box and planar faces, given by its 8 corners.
+    """A convex solid with a box's topology and planar faces: boxes, tilted boxes, swept wings, fins.
 
-    ``corners`` (8, 3): corner ``i`` plays the role of the box corner with signs
-    ``(bit0(i), bit1(i), bit2(i))`` along (x, y, z). Boxes, tilted boxes, tapered swept wings and fins
-    are all hexahedra. Each face must be planar (the generators build them so).
+    Args:
+        corners: (8, 3); corner i plays the box corner whose sign on axis j is bit j of i.
+            Each face's four corners must be coplanar.
+        label: part label.
     """
 
     def __init__(self, corners: np.ndarray, label: int):
@@ -191,7 +235,17 @@ class Hexahedron(Solid):
 
 
 def box(center, half_sizes, R=None, label: int = 0) -> Hexahedron:
-    """An oriented box as a :class:`Hexahedron`: centre (3,), half sizes (3,), rotation R (3, 3)."""
+    """An oriented box as a :class:`Hexahedron`.
+
+    Args:
+        center: (3,).
+        half_sizes: (3,) half extents along the local axes.
+        R: (3, 3) rotation whose columns are the local axes; None: the identity.
+        label: part label.
+
+    Returns:
+        The box as a :class:`Hexahedron`.
+    """
     R = np.eye(3) if R is None else np.asarray(R, dtype=float)
     signs = np.array([[(i >> k & 1) * 2 - 1 for k in range(3)] for i in range(8)], dtype=float)
     corners = np.asarray(center, dtype=float) + (signs * np.asarray(half_sizes, dtype=float)) @ R.T
@@ -201,9 +255,12 @@ def box(center, half_sizes, R=None, label: int = 0) -> Hexahedron:
 class RoundedBox(_Framed):
     """A box with all edges and corners rounded: the Minkowski sum of a box and a ball.
 
-    ``inner`` (3,) are the half sizes of the inner box (>= 0) and ``radius`` the rounding radius, so
-    the outer half sizes are ``inner + radius``. Its surface is 6 flat faces, 12 quarter cylinders and
-    8 sphere octants; each piece is sampled in proportion to its area.
+    Args:
+        c: (3,) centre.
+        R: (3, 3) rotation, columns the local axes.
+        inner: (3,) half sizes of the inner box, >= 0; the outer half sizes are ``inner + radius``.
+        radius: rounding radius.
+        label: part label.
     """
 
     def __init__(self, c, R, inner, radius: float, label: int):
@@ -264,7 +321,15 @@ class RoundedBox(_Framed):
 
 
 class Cylinder(_Framed):
-    """A closed circular cylinder: axis = local z, ``radius``, ``half_height`` (caps at z = +-half_height)."""
+    """A closed circular cylinder along its local z axis.
+
+    Args:
+        c: (3,) centre.
+        R: (3, 3) rotation, columns the local axes.
+        radius: radius.
+        half_height: the caps lie at local z = +-half_height.
+        label: part label.
+    """
 
     def __init__(self, c, R, radius: float, half_height: float, label: int):
         super().__init__(c, R, label)
@@ -272,7 +337,17 @@ class Cylinder(_Framed):
 
     @classmethod
     def between(cls, a, b, radius: float, label: int) -> "Cylinder":
-        """The cylinder whose axis runs from point ``a`` (3,) to point ``b`` (3,)."""
+        """The cylinder whose axis runs from ``a`` to ``b``.
+
+        Args:
+            a: (3,) centre of one cap.
+            b: (3,) centre of the other cap.
+            radius: radius.
+            label: part label.
+
+        Returns:
+            A :class:`Cylinder`.
+        """
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
         return cls((a + b) / 2, frame_from_axis(b - a), radius, np.linalg.norm(b - a) / 2, label)
 
@@ -308,7 +383,14 @@ class Cylinder(_Framed):
 
 
 class Capsule(Solid):
-    """All points within ``radius`` of the segment from ``a`` (3,) to ``b`` (3,)."""
+    """All points within ``radius`` of a segment.
+
+    Args:
+        a: (3,) one end of the segment.
+        b: (3,) the other end (may equal ``a``: a ball).
+        radius: radius.
+        label: part label.
+    """
 
     def __init__(self, a, b, radius: float, label: int):
         self.a, self.b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
@@ -347,13 +429,17 @@ class Capsule(Solid):
 
 
 class Ellipsoid(_Framed):
-    """An ellipsoid with semi-axes ``radii`` (3,) along its local axes.
+    """An ellipsoid with semi-axes ``radii`` along its local axes.
 
-    Area-uniform sampling: a uniform direction ``u`` on the unit sphere maps to ``x = D u`` with
-    ``D = diag(radii)``; the map stretches area by ``g(u) = prod(radii) * |u / radii|``, so ``u`` is
-    kept with probability ``g(u) / max g``. The area is ``4 pi E[g(u)]``, evaluated on a fixed
-    8192-point Fibonacci lattice. The signed distance ``(|x / radii| - 1) * min(radii)`` has the
-    right sign and zero set but is only approximate away from the surface.
+    Sampling maps uniform directions u to ``radii * u``, kept with probability proportional to the
+    area stretch; the area is averaged on a fixed Fibonacci lattice. The signed distance
+    ``(|x / radii| - 1) * min(radii)`` is exact only in sign and zero set.
+
+    Args:
+        c: (3,) centre.
+        R: (3, 3) rotation, columns the local axes.
+        radii: (3,) semi-axes.
+        label: part label.
     """
 
     def __init__(self, c, R, radii, label: int):
@@ -394,10 +480,19 @@ class Ellipsoid(_Framed):
 
 
 def bar(a, b, width: float, label: int, round_section: bool = False, up=(0.0, 1.0, 0.0)) -> Solid:
-    """A straight bar from ``a`` to ``b``: a cylinder of diameter ``width`` or a square-section box.
+    """A straight bar from ``a`` to ``b``: a square-section box or a cylinder.
 
-    The square section is oriented with one side perpendicular to both the bar and ``up`` (for a
-    horizontal bar: its faces are horizontal and vertical).
+    Args:
+        a: (3,) start of the bar's axis.
+        b: (3,) end of the bar's axis.
+        width: side of the square section, or the cylinder's diameter.
+        label: part label.
+        round_section: build a :class:`Cylinder` instead of a box.
+        up: (3,) one side of the square section is perpendicular to both the bar and ``up`` (a
+            horizontal bar then has horizontal and vertical faces).
+
+    Returns:
+        A :class:`Hexahedron` or, with ``round_section``, a :class:`Cylinder`.
     """
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if round_section:
@@ -412,7 +507,15 @@ def bar(a, b, width: float, label: int, round_section: bool = False, up=(0.0, 1.
 
 
 def union_sdf(solids: list[Solid], x: np.ndarray) -> np.ndarray:
-    """Signed distance (n,) of points ``x`` (n, 3) to the union of ``solids`` (the minimum over solids)."""
+    """Signed distance to the union of solids: the minimum over them.
+
+    Args:
+        solids: the solids.
+        x: (n, 3) points.
+
+    Returns:
+        (n,) signed distances.
+    """
     return np.min([s.sdf(x) for s in solids], axis=0)
 
 
@@ -421,17 +524,20 @@ def sample_union_surface(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample ``n`` points area-uniformly on the outer surface of the union of ``solids``.
 
-    Candidates are drawn from each solid in proportion to its area; a candidate is rejected when
-    it lies more than ``tol`` inside another solid (``sdf < -tol``). Where two solids share a
-    coplanar piece of outer surface, only the solid listed first keeps its candidates there (a
-    candidate within ``tol`` of an earlier solid's surface is rejected too), so overlapping faces
-    are not sampled twice. Rejection keeps the distribution uniform on what remains, so the
-    survivors are uniform on the union's outer surface. Rounds of candidates are drawn until ``n``
-    survive; a random subset of exactly ``n`` is returned.
+    Area-weighted candidates from every solid are rejected where they lie inside another solid.
+    Solids that touch must overlap (not merely share a face), or the contact face survives. Where
+    two solids share a coplanar piece of outer surface, only the one listed first is sampled there.
+
+    Args:
+        solids: the solids of one shape.
+        n: number of points.
+        rng: numpy random generator.
+        tol: a candidate is rejected when ``sdf < -tol`` for another solid (``sdf < tol`` for an
+            earlier one).
 
     Returns:
-        points (n, 3), outward unit normals (n, 3) and solid indices (n,) (``solids[i].label`` is
-        the point's part label).
+        ``(points, normals, index)``: (n, 3) points, (n, 3) outward unit normals and (n,) solid
+        indices (``solids[index[i]].label`` is point i's part label).
     """
     areas = np.array([s.area() for s in solids])
     probs = areas / areas.sum()

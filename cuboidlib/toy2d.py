@@ -1,22 +1,12 @@
-"""A two-dimensional toy version of cuboid abstraction: oriented rectangles fitted to boundary points.
+"""A 2D toy of cuboid abstraction: oriented rectangles fitted to boundary points (lesson 01).
 
-Lesson 01 uses it to reproduce the ambiguity of the paper's Fig. 2 and the degenerate solutions of
-Fig. 9, and to show how the normal-aware point-to-primitive distance (Sec. 3.4.1, Eq. (5)), the soft
-point allocation (Eq. (3)-(4)) and the compactness loss (Eq. (6)) avoid them. Everything mirrors the
-3D conventions of cuboidlib with one dimension less:
-
-- rectangles: ``centers`` (B, K, 2), ``angles`` (B, K) in radians (counter-clockwise rotation of the
-  rectangle's local axes from the world axes) and ``half_sizes`` (B, K, 2), the half extents along
-  the local x and y axes. A point in the rectangle's frame is mapped to the world by
-  ``p = center + R(angle) @ p_local``;
-- points (B, N, 2) with unit outward normals (B, N, 2); distances have shape (B, N, K);
-- the allocation W has shape (B, N, K): softmax over the last axis (over rectangles).
-
-The four edges of a rectangle are numbered counter-clockwise by their outward normal in the local
-frame: 0 = +x, 1 = +y, 2 = -x, 3 = -y (see :data:`EDGE_NORMALS`).
-
-Why one file: the 2D toy mirrors the 3D library (distances, allocation, fitting) with one dimension
-less, so lesson 01 needs only this module.
+It reproduces the ambiguity of the paper's Fig. 2 and the degenerate solutions of Fig. 9, and shows
+how the normal-aware distance (Eq. (5), Sec. 3.4.1), the soft allocation (Eq. (3)-(4)) and the
+compactness loss (Eq. (6)) avoid them. Conventions mirror the 3D ones with one dimension less:
+rectangles are ``centers`` (B, K, 2), ``angles`` (B, K) in radians (counter-clockwise) and
+``half_sizes`` (B, K, 2), with ``p = center + R(angle) @ p_local``; points and unit outward normals
+are (B, N, 2); distances and the allocation W (a softmax over rectangles) are (B, N, K). Edges are
+numbered by their local outward normal: 0 = +x, 1 = +y, 2 = -x, 3 = -y (:data:`EDGE_NORMALS`).
 """
 
 from __future__ import annotations
@@ -68,9 +58,12 @@ EDGE_NORMALS = torch.tensor([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
 
 
 class Rectangles(NamedTuple):
-    """A batch of K oriented rectangles: centers (B, K, 2), angles (B, K), half_sizes (B, K, 2).
+    """A batch of K oriented rectangles; a tuple, so ``nearest_edge_distance(points, *rects)`` works.
 
-    It is a tuple, so ``nearest_edge_distance(points, *rects)`` passes the three tensors.
+    Args:
+        centers: (B, K, 2).
+        angles: (B, K) counter-clockwise rotations in radians.
+        half_sizes: (B, K, 2) half extents along the local axes.
     """
 
     centers: torch.Tensor
@@ -124,9 +117,13 @@ def _validate(centers, angles, half_sizes, points=None, normals=None, allow_zero
 
 
 def rotation_2d(angles: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices R(angle) = [[cos, -sin], [sin, cos]] for angles (...,) -> (..., 2, 2).
+    """Rotation matrices R(angle) = [[cos, -sin], [sin, cos]].
 
-    The columns of R are the rectangle's local x and y axes in world coordinates.
+    Args:
+        angles: (...) in radians.
+
+    Returns:
+        (..., 2, 2); the columns are the rectangle's local x and y axes in world coordinates.
     """
     angles = as_float_tensor(angles, "angles")
     c, s = torch.cos(angles), torch.sin(angles)
@@ -134,9 +131,13 @@ def rotation_2d(angles: torch.Tensor) -> torch.Tensor:
 
 
 def rectangle_corners(centers: torch.Tensor, angles: torch.Tensor, half_sizes: torch.Tensor) -> torch.Tensor:
-    """The four corners (B, K, 4, 2) of each rectangle, counter-clockwise.
+    """The four corners of each rectangle, counter-clockwise.
 
-    Corner e is where edge e starts: local (+hx, -hy), (+hx, +hy), (-hx, +hy), (-hx, -hy).
+    Args:
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2), >= 0.
+
+    Returns:
+        (B, K, 4, 2); corner e is where edge e starts: local (+hx, -hy), (+hx, +hy), (-hx, +hy), (-hx, -hy).
     """
     centers, angles, half_sizes, _, _, _ = _validate(centers, angles, half_sizes)
     signs = torch.tensor(
@@ -196,7 +197,13 @@ def sample_rectangle_boundary(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Sample n points uniformly by length on the boundary of each rectangle, with outward normals.
 
-    centers (B, K, 2), angles (B, K), half_sizes (B, K, 2) -> points (B, K, n, 2), normals (B, K, n, 2).
+    Args:
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2), > 0.
+        n: points per rectangle.
+        generator: source of randomness.
+
+    Returns:
+        ``(points, normals)``, each (B, K, n, 2).
     """
     centers, angles, half_sizes, _, _, sizes = _validate(centers, angles, half_sizes, allow_zero=False)
     if not isinstance(n, int) or n < 1:
@@ -220,7 +227,15 @@ def _inside(
 def inside_rectangles(
     points: torch.Tensor, centers: torch.Tensor, angles: torch.Tensor, half_sizes: torch.Tensor
 ) -> torch.Tensor:
-    """Closed point-in-rectangle test: points (B, N, 2), rectangles (B, K, ...) -> (B, N, K) bool."""
+    """Closed point-in-rectangle test (points on the boundary are inside).
+
+    Args:
+        points: (B, N, 2).
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2), >= 0.
+
+    Returns:
+        (B, N, K) bool.
+    """
     centers, angles, half_sizes, points, _, _ = _validate(centers, angles, half_sizes, points)
     return _inside(points, centers, angles, half_sizes)
 
@@ -236,16 +251,22 @@ def sample_union_boundary(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Sample n points uniformly by length on the OUTER boundary of the union of K rectangles.
 
-    centers (B, K, 2), angles (B, K), half_sizes (B, K, 2) -> points (B, n, 2), unit outward normals
-    (B, n, 2) and labels (B, n) (long), the index of the rectangle whose edge each point lies on.
+    Candidates on all edges are kept when a point just outside them, p + step * diameter * n, lies in
+    no other rectangle; an edge piece shared by two rectangles is kept once, for the first.
 
-    Candidates are drawn uniformly by length over all edges (rejection sampling, repeated until n
-    points are kept). A candidate p on an edge of rectangle k with outward normal n is kept when the
-    point p + step * diameter * n, just outside rectangle k, lies outside every other rectangle:
-    edge pieces inside another rectangle, or glued to another rectangle's edge, are interior to the
-    union. Where two rectangles share a collinear edge piece with the same normal, only the first
-    rectangle's copy is kept (p - step * diameter * n must not lie in an earlier rectangle), so the
-    density stays uniform. ``step`` is relative to the largest rectangle diagonal.
+    Args:
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2), > 0.
+        n: points per shape.
+        generator: source of randomness.
+        step: the probe's offset, as a fraction of the largest rectangle diagonal, in (0, 0.01).
+        max_rounds: rounds of rejection sampling before giving up.
+
+    Returns:
+        ``(points, normals, labels)``: (B, n, 2) points, (B, n, 2) unit outward normals and (B, n)
+        int64 indices of the rectangle whose edge each point lies on.
+
+    Raises:
+        ValueError: when ``max_rounds`` rounds do not yield n points (a degenerate union).
     """
     centers, angles, half_sizes, _, _, sizes = _validate(centers, angles, half_sizes, allow_zero=False)
     if not isinstance(n, int) or n < 1:
@@ -293,7 +314,15 @@ def sample_union_boundary(
 
 
 def boxes_to_rectangles(boxes: list[tuple[float, float, float, float]], dtype: torch.dtype | None = None) -> Rectangles:
-    """Axis-aligned rectangles given as K boxes (xmin, xmax, ymin, ymax) -> Rectangles with B = 1."""
+    """Axis-aligned rectangles from boxes.
+
+    Args:
+        boxes: K boxes ``(xmin, xmax, ymin, ymax)``, xmin < xmax, ymin < ymax.
+        dtype: float dtype; None: torch's default.
+
+    Returns:
+        :class:`Rectangles` with B = 1: centers (1, K, 2), angles (1, K) zeros, half_sizes (1, K, 2).
+    """
     t = as_float_tensor(boxes, "boxes", dtype=dtype)
     if t.dim() != 2 or t.shape[1] != 4 or t.shape[0] == 0:
         raise ValueError(f"boxes must be a non-empty list of (xmin, xmax, ymin, ymax), got shape {tuple(t.shape)}")
@@ -305,31 +334,62 @@ def boxes_to_rectangles(boxes: list[tuple[float, float, float, float]], dtype: t
 
 
 def rectangle_shape(dtype: torch.dtype | None = None) -> Rectangles:
-    """One part, the paper's Fig. 2 example: the rectangle [-1, 1] x [-0.6, 0.6] (B = 1, K = 1)."""
+    """One part, the paper's Fig. 2 example: the rectangle [-1, 1] x [-0.6, 0.6].
+
+    Args:
+        dtype: float dtype; None: torch's default.
+
+    Returns:
+        :class:`Rectangles` with B = 1, K = 1.
+    """
     return boxes_to_rectangles([(-1.0, 1.0, -0.6, 0.6)], dtype)
 
 
 def l_shape(dtype: torch.dtype | None = None) -> Rectangles:
-    """An L in [-1, 1]^2 of two parts 1 thick: a 1 x 2 upright and a 1 x 1 foot to its right (B = 1, K = 2)."""
+    """An L in [-1, 1]^2 of two parts 1 thick: a 1 x 2 upright and a 1 x 1 foot to its right.
+
+    Args:
+        dtype: float dtype; None: torch's default.
+
+    Returns:
+        :class:`Rectangles` with B = 1, K = 2.
+    """
     return boxes_to_rectangles([(-1.0, 0.0, -1.0, 1.0), (0.0, 1.0, -1.0, 0.0)], dtype)
 
 
 def t_shape(dtype: torch.dtype | None = None) -> Rectangles:
-    """A T in [-1, 1]^2 of two parts 0.8 thick: a 2 x 0.8 top bar and a 0.8 x 1.2 stem (B = 1, K = 2)."""
+    """A T in [-1, 1]^2 of two parts 0.8 thick: a 2 x 0.8 top bar and a 0.8 x 1.2 stem.
+
+    Args:
+        dtype: float dtype; None: torch's default.
+
+    Returns:
+        :class:`Rectangles` with B = 1, K = 2.
+    """
     return boxes_to_rectangles([(-1.0, 1.0, 0.2, 1.0), (-0.4, 0.4, -1.0, 0.2)], dtype)
 
 
 def u_shape(dtype: torch.dtype | None = None) -> Rectangles:
-    """A U in [-1, 1]^2 of three parts: two 0.6 x 2 uprights and a 0.8 x 0.7 base between them (B = 1, K = 3)."""
+    """A U in [-1, 1]^2 of three parts: two 0.6 x 2 uprights and a 0.8 x 0.7 base between them.
+
+    Args:
+        dtype: float dtype; None: torch's default.
+
+    Returns:
+        :class:`Rectangles` with B = 1, K = 3.
+    """
     return boxes_to_rectangles([(-1.0, -0.4, -1.0, 1.0), (0.4, 1.0, -1.0, 1.0), (-0.4, 0.4, -1.0, -0.3)], dtype)
 
 
 def stack_rectangles(shapes: list[tuple]) -> tuple[Rectangles, torch.Tensor]:
-    """Stack shapes with different numbers of parts into one batch.
+    """Stack shapes with different numbers of parts into one batch, padded with zero-size rectangles.
 
-    shapes: a list of (centers (1, K_i, 2), angles (1, K_i), half_sizes (1, K_i, 2)) tuples, e.g.
-    the presets. Returns Rectangles (S, K_max, ...) padded with zero-size rectangles and a bool mask
-    present (S, K_max) of the real ones (pass it as ``used`` to :func:`union_iou`).
+    Args:
+        shapes: S tuples (centers (1, K_i, 2), angles (1, K_i), half_sizes (1, K_i, 2)), e.g. the presets.
+
+    Returns:
+        ``(rectangles, present)``: :class:`Rectangles` of S shapes and K_max = max K_i rectangles, and
+        an (S, K_max) bool mask of the real ones (pass it as ``used`` to :func:`union_iou`).
     """
     if len(shapes) == 0:
         raise ValueError("shapes is empty; at least one shape is needed")
@@ -361,22 +421,26 @@ def nearest_edge_distance(
     half_sizes: torch.Tensor,
     validate: bool = True,
 ) -> torch.Tensor:
-    """Squared distance from each point to the NEAREST edge segment of each rectangle: (B, N, K).
+    """Squared distance from each point to the NEAREST edge of each rectangle, ignoring normals.
 
-    points (B, N, 2); rectangles centers (B, K, 2), angles (B, K), half_sizes (B, K, 2).
-    This is the "closest cuboid plane" distance the paper argues against (Sec. 3.4.1 and Fig. 9):
-    it ignores normals, so it is zero for a point lying on any edge, whichever side the shape is on.
-    In the rectangle's frame, with q = |p_local| - h: outside the rectangle it is
-    |max(q, 0)|^2 (the squared distance to the rectangle), inside it is max(q_x, q_y)^2 (the
-    squared distance to the nearest edge line, whose foot is always on the segment); the two cases
-    are one expression: relu(q_x)^2 + relu(q_y)^2 + relu(-max(q_x, q_y))^2.
+    The "closest plane" distance the paper argues against (Sec. 3.4.1, Fig. 9): zero for a point on
+    any edge, whichever side the shape is on.
+
+    Args:
+        points: (B, N, 2).
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2), >= 0.
+        validate: check the inputs; False expects tensors of one dtype and device.
+
+    Returns:
+        (B, N, K) squared distances.
     """
     if validate:
         centers, angles, half_sizes, points, _, _ = _validate(centers, angles, half_sizes, points)
     x, y = _local_xy(points, centers, angles)
     qx = x.abs() - half_sizes[:, None, :, 0]
     qy = y.abs() - half_sizes[:, None, :, 1]
-    # outside only the positive parts count; inside (both q < 0) only the larger q does
+    # outside only the positive parts count; inside (both q < 0) only the larger q does:
+    # relu(q_x)^2 + relu(q_y)^2 + relu(-max(q_x, q_y))^2, each (B, N, K)
     q_max = torch.where(qx > qy, qx, qy)
     return torch.relu(qx).square() + torch.relu(qy).square() + torch.relu(-q_max).square()
 
@@ -389,11 +453,14 @@ def _matching_edge(nx: torch.Tensor, ny: torch.Tensor) -> torch.Tensor:
 
 
 def best_matching_edge(normals: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
-    """Index (B, N, K) of the edge of each rectangle whose outward normal is most similar to the point normal.
+    """The edge of each rectangle whose outward normal is most similar to the point's normal (Sec. 3.4.1).
 
-    normals (B, N, 2) unit; angles (B, K). The cosine between a point normal n and the outward normal
-    of edge e is EDGE_NORMALS[e] . (R^T n); the edge with the largest cosine wins (the first one on
-    ties). The choice is discrete: no gradient flows through it (as in Sec. 3.4.1).
+    Args:
+        normals: (B, N, 2) unit normals.
+        angles: (B, K).
+
+    Returns:
+        (B, N, K) int64 edge indices (:data:`EDGE_NORMALS` order; the first on ties), without gradient.
     """
     normals = as_float_tensor(normals, "normals")
     angles = as_float_tensor(angles, "angles", dtype=normals.dtype, device=normals.device)
@@ -423,21 +490,23 @@ def normal_aware_distance(
     generator: torch.Generator | None = None,
     validate: bool = True,
 ) -> torch.Tensor:
-    """The paper's point-to-primitive distance d(p, C) = |q - p|^2, Eq. (5), for rectangles: (B, N, K).
+    """The paper's point-to-primitive distance d(p, C) = |q - p|^2, Eq. (5), for rectangles.
 
-    points, normals (B, N, 2); rectangles centers (B, K, 2), angles (B, K), half_sizes (B, K, 2).
-    For every point p with unit normal n and every rectangle:
-    1. the edge is the one whose outward normal is most similar to n (:func:`best_matching_edge`,
-       no gradient through the choice);
-    2. a sampled point p^s = p + e * n is taken along the normal, e ~ N(0, sigma_s^2), one e per point
-       shared by all rectangles. ``offsets`` (B, N) gives the e values (to reproduce a draw exactly;
-       sigma_s is then not used); otherwise they are drawn with ``generator``. sigma_s = 0 is the
-       unsampled variant;
-    3. q is the point of that edge SEGMENT nearest to p^s (clamped to the segment, not the line);
-    4. d = |q - p|^2 is measured to the ORIGINAL point p.
-    For p on an edge whose normal is tilted by theta from n (theta < 45 degrees), E[d] =
-    sigma_s^2 sin^2(theta): the sampling adds a soft normal-alignment penalty. d = 0 only when p lies
-    on an edge with the same outward normal.
+    The edge is chosen by :func:`best_matching_edge` (no gradient); p^s = p + e n, e ~ N(0, sigma_s^2),
+    is sampled along the normal; q is the point of that edge SEGMENT nearest to p^s; d is measured to
+    the ORIGINAL point p. On an edge tilted by theta from n, E[d] = sigma_s^2 sin^2 theta.
+
+    Args:
+        points: (B, N, 2).
+        normals: (B, N, 2) unit normals of the points.
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2), >= 0.
+        sigma_s: standard deviation of e; 0 (with no offsets) is the unsampled variant.
+        offsets: optional (B, N) values of e, one per point shared by all rectangles (then sigma_s is unused).
+        generator: source of e when ``offsets`` is None.
+        validate: check the inputs; False expects tensors of one dtype and device.
+
+    Returns:
+        (B, N, K) squared distances.
     """
     if validate:
         centers, angles, half_sizes, points, normals, _ = _validate(centers, angles, half_sizes, points, normals)
@@ -451,7 +520,7 @@ def normal_aware_distance(
             check_finite(offsets, "offsets")
     elif sigma_s > 0:
         offsets = sigma_s * torch.randn(B, N, generator=generator, dtype=points.dtype, device=points.device)
-    x, y = _local_xy(points, centers, angles)  # the original point p
+    x, y = _local_xy(points, centers, angles)  # the original point p, each (B, N, K)
     nx, ny = _local_dir(normals, angles)
     if offsets is None:
         sx, sy = x, y
@@ -474,12 +543,14 @@ def normal_aware_distance(
 
 
 class FitResult(NamedTuple):
-    """Output of :func:`fit_rectangles`.
+    """Output of :func:`fit_rectangles`, all detached.
 
-    centers (B, K, 2), angles (B, K), half_sizes (B, K, 2): the fitted rectangles (detached);
-    W (B, N, K): the final allocation (the softmax of the logits for "soft"; for "min", one-hot of the
-    rectangle with the smallest unsampled distance);
-    portions (B, K): w_k = mean_n W_nk; history (steps, B): the objective at every step.
+    Attributes:
+        centers: (B, K, 2); angles: (B, K); half_sizes: (B, K, 2): the fitted rectangles.
+        W: (B, N, K) final allocation: the softmax for "soft", for "min" one-hot of the rectangle at
+            the smallest unsampled distance.
+        portions: (B, K), w_k = mean_n W_nk.
+        history: (steps, B), the objective at every step.
     """
 
     centers: torch.Tensor
@@ -558,29 +629,34 @@ def fit_rectangles(
     init_size: tuple[float, float] = (0.1, 0.4),
     seed: int = 0,
 ) -> FitResult:
-    """Fit K rectangles to each point set of the batch by gradient descent (Adam) from random starts.
+    """Fit K rectangles to each point set of the batch by Adam from a random start.
 
-    points (B, N, 2); normals (B, N, 2) unit (may be None for distance="nearest").
-    distance: "normal" (:func:`normal_aware_distance`, the paper's Eq. (5), with a fresh offset per
-    point at every step when sigma_s > 0) or "nearest" (:func:`nearest_edge_distance`).
-    assignment:
-    - "min": objective = mean_n min_k d(p_n, R_k): every point is served by its closest rectangle
-      (the hard assignment of the paper's P2C-Dis baseline, Sec. 4.3); no compactness term;
-    - "soft": objective = mean_n sum_k W_nk d(p_n, R_k) + compactness_weight * L_compact(w), the
-      paper's Eq. (4) + lambda_1 Eq. (6), with W = softmax over rectangles of free logits
-      a_nk + b_k: a free logit per point and rectangle plus a free logit per rectangle shared by
-      its points. Any W can be written this way; the shared b_k lets a whole group of points move
-      to another rectangle at once (the role of the network's per-cuboid feature in the paper).
-      a starts at -d_nk / mean(d) for the starting rectangles (unsampled distance), b at 0.
-    Random start, drawn from ``seed`` and identical for every distance/assignment: centers uniform
-    in the bounding box of the points, angles uniform in [0, pi/2), half sizes uniform in
-    init_size (fractions of the larger half extent of the bounding box). Half sizes are exp(free
-    parameter), so they stay positive. Adam learning rates: ``lr`` (rectangles), ``logit_lr`` (a),
-    ``bias_lr`` (b), all decayed to 0 with a cosine schedule. The batch elements are independent
-    fits (the objective is summed over the batch), so several random starts of one shape can be
-    run at once by repeating its points along the batch axis.
-    Defaults: compactness_weight = 0.03 suits shapes about 2 units across (distances scale with
-    the size squared, the compactness term does not); sigma_s = 0.05 as in the paper.
+    "soft" minimises Eq. (4) + lambda_1 Eq. (6) with W = softmax_k(a_nk + b_k): free logits per point
+    and rectangle, plus one per rectangle that moves a whole group of points at once (the role of the
+    network's cuboid feature). "min" minimises mean_n min_k d(p_n, R_k), the hard assignment of
+    P2C-Dis (Sec. 4.3). Batch elements are independent fits: repeat one shape along the batch axis
+    to run several random starts at once.
+
+    Args:
+        points: (B, N, 2).
+        normals: (B, N, 2) unit normals; may be None for distance="nearest".
+        K: rectangles per shape.
+        distance: "normal" (:func:`normal_aware_distance`, a fresh e per step) or "nearest"
+            (:func:`nearest_edge_distance`).
+        assignment: "soft" or "min" (no compactness term).
+        compactness_weight: lambda_1; 0.03 suits shapes about 2 units across (distances scale with
+            the size squared, the compactness term does not).
+        sigma_s: standard deviation of the sampling along the normal (the paper's 0.05).
+        steps: Adam steps, with all learning rates decayed to 0 on a cosine schedule.
+        lr: learning rate of the rectangles (half sizes are exp of a free parameter).
+        logit_lr: learning rate of the logits a_nk, which start at -d_nk / mean(d).
+        bias_lr: learning rate of the logits b_k, which start at 0.
+        init_size: (low, high), starting half sizes as fractions of the larger half extent of the
+            points' bounding box; centres start uniform in the box, angles in [0, pi/2).
+        seed: the random start, the same for every distance and assignment.
+
+    Returns:
+        A :class:`FitResult`.
     """
     points, normals = _check_fit_inputs(points, normals, K, distance, assignment, steps, init_size, {
         "compactness_weight": compactness_weight, "sigma_s": sigma_s, "lr": lr, "logit_lr": logit_lr, "bias_lr": bias_lr
@@ -646,9 +722,14 @@ def fit_rectangles(
 
 
 def used_rectangles(portions: torch.Tensor, eps_ext: float = 0.05) -> torch.Tensor:
-    """Rectangles that get more than eps_ext of the points: portions (B, K) -> bool (B, K).
+    """Rectangles that get more than ``eps_ext`` of the points: the existence target delta_m^gt of Sec. 3.4.3.
 
-    The same rule as the paper's existence target delta_m^gt = [w_m > eps_ext] (Sec. 3.4.3).
+    Args:
+        portions: (B, K) allocation portions w_k.
+        eps_ext: threshold on w_k.
+
+    Returns:
+        (B, K) bool.
     """
     portions = as_float_tensor(portions, "portions")
     check_shape(portions, ("B", "K"), "portions")
@@ -656,7 +737,14 @@ def used_rectangles(portions: torch.Tensor, eps_ext: float = 0.05) -> torch.Tens
 
 
 def aspect_ratios(half_sizes: torch.Tensor) -> torch.Tensor:
-    """Long side over short side of each rectangle: half_sizes (B, K, 2) -> (B, K), >= 1."""
+    """Long side over short side of each rectangle.
+
+    Args:
+        half_sizes: (B, K, 2), > 0.
+
+    Returns:
+        (B, K) ratios, >= 1.
+    """
     half_sizes = as_float_tensor(half_sizes, "half_sizes")
     check_shape(half_sizes, ("B", "K", 2), "half_sizes")
     check_positive(half_sizes, "half_sizes")
@@ -664,11 +752,15 @@ def aspect_ratios(half_sizes: torch.Tensor) -> torch.Tensor:
 
 
 def thin_fraction(half_sizes: torch.Tensor, used: torch.Tensor, min_thickness) -> torch.Tensor:
-    """Fraction (B,) of the used rectangles whose short side 2 * min(half_sizes) is below min_thickness.
+    """Fraction of the used rectangles whose short side 2 * min(half_sizes) is below ``min_thickness``.
 
-    half_sizes (B, K, 2); used (B, K) bool; min_thickness: a number or a tensor (B,) (one threshold per
-    batch element, e.g. a fraction of the thinnest true part). A batch element with no used
-    rectangle gets 0.
+    Args:
+        half_sizes: (B, K, 2).
+        used: (B, K) bool.
+        min_thickness: a number, or (B,) one threshold per shape (e.g. a fraction of its thinnest part).
+
+    Returns:
+        (B,) fractions; 0 for a shape with no used rectangle.
     """
     half_sizes = as_float_tensor(half_sizes, "half_sizes")
     check_shape(half_sizes, ("B", "K", 2), "half_sizes")
@@ -692,13 +784,21 @@ def union_iou(
     resolution: int = 200,
     extent: float = 1.5,
 ) -> torch.Tensor:
-    """Area IoU (B,) of the union of rectangles A with the union of rectangles B, on a pixel grid.
+    """Area IoU of the union of rectangles A with the union of rectangles B, on a pixel grid.
 
-    rects_a, rects_b: (centers, angles, half_sizes) tuples with the same batch size (K may differ);
-    used_a (B, K_a), used_b (B, K_b): optional bool masks of the rectangles to include. The grid has
-    resolution x resolution cell centres covering [-extent, extent]^2 (the preset shapes lie in
-    [-1, 1]^2). This measures the abstraction as a VOLUME, which boundary distances cannot see: thin
-    rectangles hugging the edges have almost no area.
+    An area measure sees what boundary distances cannot: thin rectangles hugging the edges cover
+    almost nothing.
+
+    Args:
+        rects_a: (centers (B, K_a, 2), angles (B, K_a), half_sizes (B, K_a, 2)).
+        rects_b: (centers (B, K_b, 2), angles (B, K_b), half_sizes (B, K_b, 2)), the same B.
+        used_a: optional (B, K_a) bool mask of the rectangles of A to include.
+        used_b: optional (B, K_b) bool mask of the rectangles of B to include.
+        resolution: grid cells per side.
+        extent: the grid covers [-extent, extent]^2 (the presets lie in [-1, 1]^2).
+
+    Returns:
+        (B,) IoU values.
     """
     ca, aa, ha, _, _, sa = _validate(*rects_a)
     cb, ab, hb, _, _, sb = _validate(*rects_b)
@@ -707,7 +807,7 @@ def union_iou(
     B = sa["B"]
     axis = (torch.arange(resolution, dtype=ca.dtype, device=ca.device) + 0.5) / resolution * 2 * extent - extent
     gy, gx = torch.meshgrid(axis, axis, indexing="ij")
-    grid = torch.stack([gx, gy], dim=-1).reshape(1, -1, 2).expand(B, -1, 2)
+    grid = torch.stack([gx, gy], dim=-1).reshape(1, -1, 2).expand(B, -1, 2)  # (B, G, 2), G = resolution^2
 
     def occupancy(c, a, h, used):
         inside = _inside(grid, c, a, h)  # (B, G, K)
@@ -721,11 +821,15 @@ def union_iou(
 
 
 def orientation_error(angles: torch.Tensor, used: torch.Tensor, reference: float = 0.0) -> torch.Tensor:
-    """Mean (B,) over used rectangles of the angle, in radians, between a rectangle and the reference axes.
+    """Mean angle between the used rectangles and the reference axes, modulo a quarter turn.
 
-    angles (B, K); used (B, K) bool. A rectangle is the same after a quarter turn (with its sizes
-    swapped), so the error is the distance of angle - reference to the nearest multiple of pi/2,
-    in [0, pi/4]. A batch element with no used rectangle gets 0.
+    Args:
+        angles: (B, K) in radians.
+        used: (B, K) bool.
+        reference: the reference axes' angle in radians.
+
+    Returns:
+        (B,) mean errors in [0, pi/4] radians; 0 for a shape with no used rectangle.
     """
     angles = as_float_tensor(angles, "angles")
     check_shape(angles, ("B", "K"), "angles")
@@ -747,10 +851,17 @@ def draw_abstraction(
     normal_length: float = 0.12,
     title: str | None = None,
 ) -> None:
-    """Draw ONE shape on a matplotlib Axes: points (N, 2), their normals (N, 2) as short arrows, and
-    rectangles (centers (K, 2), angles (K,), half_sizes (K, 2)) as outlines.
+    """Draw ONE shape on a matplotlib Axes: points, their normals as arrows, rectangles as outlines.
 
-    Unused rectangles (used (K,) False) are drawn dotted and grey; labels (N,) colour the points.
+    Args:
+        ax: a matplotlib Axes.
+        points: optional (N, 2).
+        normals: optional (N, 2), drawn at the points.
+        rectangles: optional (centers (K, 2), angles (K,), half_sizes (K, 2)).
+        used: optional (K,) bool; unused rectangles are drawn dotted and grey.
+        labels: optional (N,) integers that colour the points.
+        normal_length: arrow length.
+        title: optional title.
     """
     import matplotlib.pyplot as plt  # imported here so that cuboidlib.toy2d does not need a display
 

@@ -1,53 +1,13 @@
-"""Training the network (Sec. 3.4.5): configuration, data splits, the training loop, resuming, DDP.
+"""Training the network (Sec. 3.4.5): the configuration, the loop, and the committed networks' two stages.
 
-The paper trains each category separately with Adam, learning rate 6e-4 and batch size 32 for 1000
-epochs (Sec. 3.4.5); those are the defaults of :class:`TrainConfig`, which also holds the data, the
-model (:class:`~cuboidlib.model.ModelConfig`) and the loss (:class:`~cuboidlib.losses.LossConfig`)
-and round-trips through JSON. :class:`Trainer` runs the loop and the ``cuboidlib train`` command
-wraps it; :func:`train_then_finetune` runs the committed networks' two stages in one call
-(``cuboidlib train --finetune``), and :func:`train_with_snapshots` keeps the weights of a run at chosen
-steps (the lessons look inside a run that way).
-
-**Data** (:mod:`cuboidlib.dataset`). A procedural collection (:func:`cuboidlib.shapes.make_collection`)
-or a folder of point cloud / mesh files, held in memory as (S, N, 3) tensors and split into train /
-validation / test by a seeded permutation (:func:`cuboidlib.dataset.split_indices`). The committed
-networks' recipes are :func:`course_config`. Model selection (``best.pt``) uses the validation split only (its
-lowest loss, or with ``selection="last"`` simply the last weights); the test split is never touched during
-training (``cuboidlib evaluate`` scores it).
-
-**Determinism and exact resume.** Randomness comes from three sources only: the order of the shapes
-(a permutation per epoch seeded by ``(seed, epoch)``, so it needs no saved state), the offsets along
-the normals of the distance of Eq. (5) (one ``torch.Generator``) and the VAE noise of Eq. (1) (a
-second generator). The initial weights come from ``seed``. A checkpoint stores the weights, the Adam
-state, the step and both generator states, so that a run killed at any point and resumed from its
-last checkpoint ends with bitwise the same weights as an uninterrupted run (float32 on the CPU,
-same thread count). Training batches are full batches: an epoch has ``n_train // batch_size`` steps
-(the last incomplete batch of each permutation is skipped).
-
-**Divergence.** After every forward pass the network's outputs and the loss terms are checked, after
-every backward pass the gradients and after every update the weights; a NaN or infinity raises
-:class:`TrainingDiverged` naming the step and the bad terms, and nothing is written, so the last good
-checkpoint stays.
-
-**Several processes.** Started by ``torchrun`` (environment variables ``RANK``, ``WORLD_SIZE``,
-``LOCAL_RANK``), the same entry point initialises a process group (gloo on the CPU, nccl on CUDA),
-wraps the model in ``DistributedDataParallel`` and gives rank r the items r, r + W, r + 2W, ... of
-each global batch of ``batch_size`` shapes (``batch_size`` must be divisible by the number of
-processes W). Gradients are averaged over the processes, so every rank holds the same weights.
-BatchNorm is the plain one, not SyncBatchNorm: in training each rank normalises with the statistics
-of its own shard, and DDP copies rank 0's buffers (the running statistics) to the other ranks at the
-start of every forward pass, so these differ between ranks only by each rank's last update.
-Checkpoints hold rank 0's. Only rank 0 validates and writes files; each rank draws its own sampling
-noise, and a run must be resumed with the number of processes that wrote its checkpoint.
-
-Why one file: the configuration, the loop and its checkpoints change together (every field of
-:class:`TrainConfig` is read by the loop, and resuming must know which fields may change); the data
-it reads lives in :mod:`cuboidlib.dataset`, the release of a trained network in :mod:`cuboidlib.release`.
+The paper trains each category separately with Adam, learning rate 6e-4 and batch 32 for 1000 epochs: the
+defaults of :class:`TrainConfig`. :meth:`Trainer.run` is the loop: shuffle, one Adam step on Eq. (9) per
+batch, validate, keep ``best.pt``. Model selection reads the validation split only; the test split is scored
+by ``cuboidlib evaluate``. Resuming, several processes, checkpoints and the log are :mod:`cuboidlib.runs`.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -60,11 +20,15 @@ import torch
 
 from . import kernels
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
-from .config import ConfigDict, derive_seed, read_config_file, resolve_device
-from .dataset import ShapeSet, load_splits
-from .losses import LossConfig, total_loss
+from ._checks import check_int
+from .config import derive_seed, read_config_file, resolve_device
+from .applications import checkpoint_dir
+from .dataset import DATA_FIELDS, DataConfig, ShapeSet, load_splits
+from .evaluation import predict_cuboids, segmentation_scores
+from .losses import LOSS_TERMS, LossConfig, total_loss
 from .model import CuboidAbstractionNet, ModelConfig, allocation_saturation, read_normals_from_start
-from .shapes import CATEGORIES
+from .runs import (CoreShare, Distributed, RunLog, TrainingDiverged, TrainResult, check_finite_weights, check_gradients,
+                   check_resumable, gather_rng_states, save_last)
 
 __all__ = [
     "TrainConfig",
@@ -73,17 +37,14 @@ __all__ = [
     "TrainingDiverged",
     "TrainResult",
     "Trainer",
+    "Distributed",
     "train_then_finetune",
     "train_with_snapshots",
     "FINETUNE_DIR",
-    "DATA_FIELDS",
-    "LOSS_TERMS",
     "DIAGNOSTICS",
     "VALIDATION_SCORES",
 ]
 
-#: The loss terms logged at every step (Eq. (9) and its four terms), in log-file order.
-LOSS_TERMS = ("total", "reconstruction", "compactness", "existence", "kl")
 #: Diagnostics logged beside the loss terms: the mean number of cuboids with existence above 0.5, the
 #: fraction of points whose allocation is saturated (largest weight above 0.999) and the median gap
 #: between the best and second-best affinity logit (see :func:`cuboidlib.model.allocation_saturation`).
@@ -91,14 +52,13 @@ DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
 #: Scores of the validation split logged at every validation when its shapes carry part labels: the
 #: mIoU by the paper's label transfer, N_AC and the box distance (:func:`cuboidlib.evaluation.segmentation_scores`).
 VALIDATION_SCORES = ("miou", "n_ac", "box_distance")
+#: The columns of ``log.csv``.
+LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",) + VALIDATION_SCORES
 #: Learning-rate schedules: the paper's constant rate, or a half cosine down to ``lr_final``.
 LR_SCHEDULES = ("constant", "cosine")
 #: Model selection (which weights ``best.pt`` holds): those of the lowest validation loss, or the last
 #: validated ones (the end of a falling learning rate), with how a card names each.
 SELECTIONS = {"validation_loss": "lowest validation loss", "last": "last weights"}
-#: Fields of :class:`TrainConfig` that select the shapes a run trains, validates and is tested on: the two
-#: stages of :func:`train_then_finetune` must agree on all of them.
-DATA_FIELDS = ("category", "n_shapes", "n_points", "data_dir", "data_seed", "split_fractions", "split_seed")
 #: Fields of :class:`TrainConfig` that may change when a run is resumed (they do not change the
 #: weights a step produces); every other field must equal the checkpoint's.
 RESUMABLE_CHANGES = (
@@ -121,50 +81,36 @@ _WEIGHT_NEUTRAL = ("affinity_temperature",)
 
 
 @dataclass
-class TrainConfig(ConfigDict):
-    """Everything a training run depends on. Defaults: the paper's (Sec. 3.4.5 and Sec. 4.1).
+class TrainConfig(DataConfig):
+    """Everything a training run depends on; the defaults are the paper's (Sec. 3.4.5, Sec. 4.1).
 
-    Data:
-        category: procedural category ("chair", "table", "airplane", "animal"); with ``data_dir``
-            it only names the category in logs.
-        n_shapes: shapes in the procedural collection (ignored with ``data_dir``).
-        n_points: points per shape (paper: 4096). For files: a random subset of this size (meshes
-            are sampled with this many points).
-        data_seed: seed of the collection (or of the subsets drawn from files).
-        data_dir: a folder of point-cloud / mesh files to use instead of a procedural collection.
-        split_fractions: (train, validation, test) fractions of the shapes, summing to 1.
-        split_seed: seed of the permutation that assigns shapes to the splits.
-    Model and loss: ``model`` a :class:`ModelConfig` dict, ``loss`` a :class:`LossConfig` dict
-        (either objects or dicts may be given; missing keys take their defaults).
-    Optimisation: Adam with ``lr`` (paper: 6e-4; constant, as in the paper, or with ``lr_schedule``
-        "cosine" a half cosine from ``lr`` down to ``lr_final`` over the run's steps), ``init_from``
-        (optional: a checkpoint whose weights start the run instead of a random initialisation, to
-        continue training with another schedule), ``batch_size`` shapes per step (paper: 32, the
-        global batch when several processes train), ``epochs`` (paper: 1000), optionally capped by
-        ``max_steps``; ``max_minutes``: stop cleanly (and checkpoint) after this much wall time, counted over
-        every session of the run (a run resumed after its budget is used up trains no further step).
-    Model selection: ``selection`` "validation_loss" (default): ``best.pt`` holds the weights of the lowest
-        validation loss; "last": the weights of the last validation (the end of the run), for a run whose
-        falling learning rate is meant to settle the weights at its end.
-    Allocation warm-up (a change of the course's recipe, not the paper's): ``temperature_start`` T_0 >= 1
-        and ``temperature_steps`` S: the affinity of Eq. (2) is divided by a temperature that falls
-        geometrically from T_0 at step 0 to the model's ``affinity_temperature`` at step S and stays
-        there (:meth:`Trainer.affinity_temperature`), so the allocation is soft while the cuboids find
-        their parts; ``best.pt`` is only chosen from step S on. S = 0 (default): no warm-up.
-    Bookkeeping: ``checkpoint_every`` / ``validate_every`` steps, ``seed`` (initial weights, data
-        order, loss and VAE sampling), ``device`` ("auto" = CUDA when available, else CPU),
-        ``num_threads`` (``torch.set_num_threads``; None leaves torch's default), ``compiled_kernels``
-        (run the CPU hot spots with :mod:`cuboidlib.kernels`: the same results, a faster step; needs a
-        C++ compiler).
+    It extends :class:`~cuboidlib.dataset.DataConfig` (the data fields), so config files stay flat.
+
+    Attributes:
+        model, loss: :class:`ModelConfig` and :class:`LossConfig` as dicts (objects accepted; missing keys
+            take their defaults).
+        lr: Adam's learning rate (paper: 6e-4).
+        lr_schedule: "constant" (the paper's) or "cosine", a half cosine from ``lr`` to ``lr_final`` over the run.
+        lr_final: the last rate of the cosine schedule.
+        selection: the weights ``best.pt`` holds: "validation_loss", those of the lowest validation loss, or
+            "last", the last validated ones (for a falling learning rate).
+        temperature_start, temperature_steps: the allocation warm-up (the course's, not the paper's): the
+            affinity of Eq. (2) is divided by a temperature falling geometrically from T_0 >= 1 to the model's
+            ``affinity_temperature`` over S steps (:meth:`Trainer.affinity_temperature`); ``best.pt`` is
+            chosen from step S on. S = 0: no warm-up.
+        init_from: optional checkpoint whose weights start the run (a second stage).
+        batch_size: shapes per step, the global batch under ``torchrun`` (paper: 32).
+        epochs: passes over the training split (paper: 1000); max_steps: an optional cap on the steps.
+        max_minutes: stop cleanly (and checkpoint) after this much training time, over every session of the run.
+        checkpoint_every, validate_every: in steps.
+        seed: of the initial weights, data order, loss and VAE sampling.
+        device: "auto" (CUDA when available, else CPU), "cpu" or "cuda[:i]".
+        num_threads: for ``torch.set_num_threads``; None: torch's default; "auto" (the command line's
+            default): the cores other processes leave free (:class:`~cuboidlib.runs.CoreShare`).
+        compiled_kernels: run the CPU hot spots with :mod:`cuboidlib.kernels` (same results, faster);
+            None: wherever a C++ compiler can build them; False: never.
     """
 
-    category: str = "chair"
-    n_shapes: int = 512
-    n_points: int = 4096
-    data_seed: int = 0
-    data_dir: str | None = None
-    split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
-    split_seed: int = 0
     model: dict = field(default_factory=lambda: ModelConfig().to_dict())
     loss: dict = field(default_factory=lambda: LossConfig().to_dict())
     lr: float = 6e-4
@@ -182,10 +128,11 @@ class TrainConfig(ConfigDict):
     validate_every: int = 100
     seed: int = 0
     device: str = "auto"
-    num_threads: int | None = None
-    compiled_kernels: bool = False
+    num_threads: int | str | None = None
+    compiled_kernels: bool | None = None
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if isinstance(self.model, ModelConfig):
             self.model = self.model.to_dict()
         if isinstance(self.loss, LossConfig):
@@ -194,27 +141,16 @@ class TrainConfig(ConfigDict):
             raise ValueError("TrainConfig.model and TrainConfig.loss must be dicts (or ModelConfig / LossConfig)")
         self.model = ModelConfig.from_dict(self.model).to_dict()  # validates and fills in defaults
         self.loss = LossConfig.from_dict(self.loss).to_dict()
-        if self.data_dir is None and self.category not in CATEGORIES:
-            raise ValueError(f"TrainConfig.category must be one of {CATEGORIES}, got {self.category!r}")
-        for name in ("n_shapes", "n_points", "batch_size", "epochs", "checkpoint_every", "validate_every"):
-            _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
-        for name in ("data_seed", "split_seed", "seed"):
-            _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=0)
-        if not isinstance(self.compiled_kernels, bool):
-            raise ValueError(f"TrainConfig.compiled_kernels must be true or false, got {self.compiled_kernels!r}")
-        for name in ("max_steps", "num_threads"):
-            if getattr(self, name) is not None:
-                _check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
-        fractions = self.split_fractions
-        if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
-            raise ValueError(f"TrainConfig.split_fractions must be (train, validation, test), got {fractions!r}")
-        self.split_fractions = tuple(float(f) for f in fractions)
-        train, val, test = self.split_fractions
-        if train <= 0 or val <= 0 or test < 0 or abs(train + val + test - 1) > 1e-6:
-            raise ValueError(
-                "TrainConfig.split_fractions must be (train > 0, validation > 0, test >= 0) summing to 1, "
-                f"got {fractions!r}"
-            )
+        for name in ("batch_size", "epochs", "checkpoint_every", "validate_every"):
+            check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
+        check_int(self.seed, "TrainConfig.seed", minimum=0)
+        if self.compiled_kernels is not None and not isinstance(self.compiled_kernels, bool):
+            raise ValueError(f"TrainConfig.compiled_kernels must be true, false or null (the default: used where they "
+                             f"can be built), got {self.compiled_kernels!r}")
+        if self.max_steps is not None:
+            check_int(self.max_steps, "TrainConfig.max_steps", minimum=1)
+        if self.num_threads is not None and self.num_threads != "auto":
+            check_int(self.num_threads, "TrainConfig.num_threads (or \"auto\")", minimum=1)
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"TrainConfig.lr must be a positive number, got {self.lr!r}")
         self.lr = float(self.lr)
@@ -229,7 +165,7 @@ class TrainConfig(ConfigDict):
         if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not 1.0 <= t0 <= 100.0:
             raise ValueError(f"TrainConfig.temperature_start must be a number in [1, 100], got {t0!r}")
         self.temperature_start = float(t0)
-        _check_int(self.temperature_steps, "TrainConfig.temperature_steps", minimum=0)
+        check_int(self.temperature_steps, "TrainConfig.temperature_steps", minimum=0)
         if self.init_from is not None:
             self.init_from = str(self.init_from)
         if self.max_minutes is not None:
@@ -238,19 +174,26 @@ class TrainConfig(ConfigDict):
             self.max_minutes = float(self.max_minutes)
         if not isinstance(self.device, str) or not (self.device in ("auto", "cpu") or self.device.startswith("cuda")):
             raise ValueError(f"TrainConfig.device must be 'auto', 'cpu' or 'cuda[:i]', got {self.device!r}")
-        if self.data_dir is not None:
-            self.data_dir = str(self.data_dir)
 
     @property
     def model_config(self) -> ModelConfig:
+        """``model`` as a :class:`ModelConfig`."""
         return ModelConfig.from_dict(self.model)
 
     @property
     def loss_config(self) -> LossConfig:
+        """``loss`` as a :class:`LossConfig`."""
         return LossConfig.from_dict(self.loss)
 
     def replace(self, **changes) -> "TrainConfig":
-        """A copy with some fields changed; ``model`` / ``loss`` changes are merged into the dicts."""
+        """A copy with some fields changed.
+
+        Args:
+            **changes: new field values; ``model`` / ``loss`` dicts are merged into the current ones.
+
+        Returns:
+            A new, validated TrainConfig.
+        """
         data = self.to_dict()
         for key in ("model", "loss"):
             if key in changes and isinstance(changes[key], dict):
@@ -259,6 +202,14 @@ class TrainConfig(ConfigDict):
         return TrainConfig.from_dict(data)
 
     def save_json(self, path: str | os.PathLike) -> Path:
+        """Write the config as JSON.
+
+        Args:
+            path: the file to write; its folder is created if missing.
+
+        Returns:
+            ``path`` as a Path.
+        """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
@@ -266,37 +217,43 @@ class TrainConfig(ConfigDict):
 
     @classmethod
     def load_json(cls, path: str | os.PathLike) -> "TrainConfig":
-        """Read a JSON config file (any subset of the fields; ``model`` / ``loss`` may be partial)."""
+        """Read a JSON config file.
+
+        Args:
+            path: a JSON file of any subset of the fields (``model`` / ``loss`` may be partial).
+
+        Returns:
+            The config, defaults filled in.
+        """
         return cls.from_dict(read_config_file(path))
 
     def run_defining(self) -> dict:
-        """The fields that determine the weights of every step (all but :data:`RESUMABLE_CHANGES`)."""
+        """The fields that determine the weights of every step, as a dict (all but :data:`RESUMABLE_CHANGES`)."""
         return {k: v for k, v in self.to_dict().items() if k not in RESUMABLE_CHANGES}
 
 
 def course_config(category: str, **changes) -> TrainConfig:
-    """The recipe of the committed network of ``category``: ``configs/<category>.json`` beside the
-    committed checkpoints (:func:`cuboidlib.applications.checkpoint_dir`), the defaults of
-    :class:`TrainConfig` below it, and ``changes`` on top (``model`` / ``loss`` dicts are merged).
+    """The recipe of the committed network of ``category``.
+
+    Args:
+        category: a category with a ``configs/<category>.json`` beside the committed checkpoints
+            (:func:`cuboidlib.applications.checkpoint_dir`).
+        **changes: fields to change, as :meth:`TrainConfig.replace`.
+
+    Returns:
+        The recipe file over the defaults of :class:`TrainConfig`, with ``changes`` on top.
 
     Example::
 
         >>> course_config("chair", max_minutes=5).model_config.num_cuboids
         16
     """
-    from .applications import checkpoint_dir
-
     path = checkpoint_dir() / "configs" / f"{category}.json"
     if not path.is_file():
         raise ValueError(f"no committed recipe for {category!r} ({path} does not exist); "
                          f"the categories with one: {sorted(p.stem for p in path.parent.glob('*.json'))}")
     config = TrainConfig.load_json(path)
     return config.replace(**changes) if changes else config
-
-
-def _check_int(value, name: str, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -308,13 +265,19 @@ def _check_int(value, name: str, minimum: int) -> None:
 def validation_loss(
     model: CuboidAbstractionNet, shapes: ShapeSet, loss_config: LossConfig, batch_size: int, seed: int
 ) -> dict[str, float]:
-    """The loss terms (Eq. (9)) averaged over the shapes, in evaluation mode.
+    """The loss terms (Eq. (9)) averaged over the shapes, in evaluation mode (running BatchNorm, z = mu).
 
-    Evaluation mode: BatchNorm uses its running statistics and z = mu (no VAE noise). The offsets
-    along the normals (Eq. (5)) come from a generator seeded with ``seed``, so the value is a
-    deterministic function of the weights and comparable between validations. Restores the
-    model's training flag. Returns a dict over :data:`LOSS_TERMS` and :data:`DIAGNOSTICS` (mean
-    number of cuboids with existence probability > 0.5, allocation saturation).
+    The model's training flag is restored afterwards.
+
+    Args:
+        model: the network.
+        shapes: the validation shapes.
+        loss_config: the loss settings.
+        batch_size: shapes per forward pass.
+        seed: seeds the offsets along the normals (Eq. (5)), so the value depends on the weights only.
+
+    Returns:
+        ``{name: mean}`` over :data:`LOSS_TERMS` and :data:`DIAGNOSTICS`.
     """
     was_training = model.training
     model.eval()
@@ -347,85 +310,19 @@ def _diagnostics(out) -> list[torch.Tensor]:
 # ----------------------------------------------------------------------------------------------
 
 
-def _first_names(names: list[str]) -> str:
-    return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
-
-
-class TrainingDiverged(RuntimeError):
-    """Raised when a loss term, a gradient or a weight becomes NaN or infinite; nothing is saved."""
-
-    def __init__(self, step: int, bad: list[str], values: dict[str, float] | None = None, last_checkpoint: str = ""):
-        self.step, self.bad, self.values = step, bad, values or {}
-        shown = ", ".join(f"{k}={v:.4g}" for k, v in self.values.items())
-        msg = f"training diverged at step {step}: non-finite {', '.join(bad)}"
-        if shown:
-            msg += f" ({shown})"
-        msg += f". Nothing was saved for this step; {last_checkpoint or 'no checkpoint had been written yet'}. "
-        msg += "Try a smaller learning rate or check the data."
-        super().__init__(msg)
-
-
-@dataclass
-class TrainResult:
-    """Summary of :meth:`Trainer.run`: where it stopped and why ("finished" or "time budget")."""
-
-    step: int
-    epoch: int
-    stopped: str
-    best_val: float | None
-    best_step: int | None
-    seconds: float
-    last_terms: dict[str, float]
-    out_dir: str
-
-
-class _Distributed:
-    """Rank, world size and whether this process started the process group."""
-
-    def __init__(self) -> None:
-        self.world_size = int(os.environ.get("WORLD_SIZE", "1"))
-        self.rank = int(os.environ.get("RANK", "0"))
-        self.local_rank = int(os.environ.get("LOCAL_RANK", "0"))
-        self.owns_group = False
-
-    @property
-    def enabled(self) -> bool:
-        return self.world_size > 1
-
-    @property
-    def is_main(self) -> bool:
-        return self.rank == 0
-
-    def start(self, device: torch.device) -> None:
-        import torch.distributed as dist
-
-        if not self.enabled or dist.is_initialized():
-            return
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-        self.owns_group = True
-
-    def stop(self) -> None:
-        import torch.distributed as dist
-
-        if self.owns_group and dist.is_initialized():
-            dist.destroy_process_group()
-            self.owns_group = False
-
-
 class Trainer:
     """The training loop of the paper's network (Sec. 3.4.5) with checkpoints, resume and DDP.
 
-    ``Trainer(config, out_dir)`` prepares a new run in ``out_dir`` (which must not already hold a
-    ``last.pt``); ``resume=True`` continues from ``out_dir/last.pt`` and refuses if the
-    checkpoint's configuration differs from ``config`` in a field outside
-    :data:`RESUMABLE_CHANGES`. ``run()`` trains until the step budget (``epochs`` / ``max_steps``)
-    or the time budget is used up and returns a :class:`TrainResult`.
+    Rank 0 writes ``config.json``, ``last.pt`` (the full training state, every ``checkpoint_every`` steps
+    and at the end), ``best.pt`` (weights and config of the selected validation) and ``log.csv``.
 
-    Files in ``out_dir`` (rank 0 only): ``config.json``; ``last.pt`` (full training state, every
-    ``checkpoint_every`` steps and at the end); ``best.pt`` (weights and config at the lowest
-    validation loss, checked every ``validate_every`` steps, at the end and when the time budget
-    stops the run); ``log.csv`` (one row per step with the loss terms, one per validation).
-    ``splits`` lets a caller pass already loaded data (as from :func:`load_splits`).
+    Args:
+        config: the run.
+        out_dir: the run folder; a new run refuses one that holds a ``last.pt``.
+        resume: continue from ``out_dir/last.pt``, refused if its config differs in a field outside
+            :data:`RESUMABLE_CHANGES`.
+        quiet: print no progress.
+        splits: already loaded data, as from :func:`load_splits`; None loads it.
     """
 
     def __init__(
@@ -439,15 +336,18 @@ class Trainer:
         self.config = config
         self.out_dir = Path(out_dir)
         self.quiet = quiet
-        self.dist = _Distributed()
+        self.dist = Distributed()
         self.device = resolve_device(config.device)
         if self.device.type == "cuda" and self.dist.enabled:
             self.device = torch.device("cuda", self.dist.local_rank)
             torch.cuda.set_device(self.device)
-        if config.num_threads is not None:
+        self.core_share = CoreShare() if config.num_threads == "auto" and self.device.type == "cpu" else None
+        if isinstance(config.num_threads, int):
             torch.set_num_threads(config.num_threads)
-        if config.compiled_kernels:
+        if config.compiled_kernels is True:
             kernels.enable()
+        elif config.compiled_kernels is False:
+            kernels.disable()
         if config.batch_size % self.dist.world_size:
             raise ValueError(
                 f"batch_size {config.batch_size} must be divisible by the number of processes {self.dist.world_size}"
@@ -472,6 +372,7 @@ class Trainer:
         if config.max_steps is not None:
             self.total_steps = min(self.total_steps, config.max_steps)
         self.loss_config = config.loss_config
+        self.final_temperature = config.model_config.affinity_temperature  # read once, not at every step
 
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
@@ -503,7 +404,7 @@ class Trainer:
             )
         if self.dist.is_main:
             config.save_json(self.out_dir / "config.json")
-            self._prepare_log(resume)
+        self.log = RunLog(self.out_dir / "log.csv", LOG_FIELDS, self.step if resume else None, self.dist.is_main)
 
     # ------------------------------------------------------------------------------ state
 
@@ -528,7 +429,14 @@ class Trainer:
         self.model.load_state_dict(weights, strict=True)
 
     def learning_rate(self, step: int) -> float:
-        """The rate of optimiser step ``step`` (0-based): constant, or a half cosine over the run."""
+        """The learning rate of an optimiser step: constant, or a half cosine from ``lr`` to ``lr_final`` over the run.
+
+        Args:
+            step: the step, 0-based.
+
+        Returns:
+            The rate.
+        """
         config = self.config
         if config.lr_schedule == "constant" or self.total_steps <= 1:
             return config.lr
@@ -536,33 +444,26 @@ class Trainer:
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
     def affinity_temperature(self, step: int) -> float:
-        """The temperature of optimiser step ``step`` (0-based): T_0 (T / T_0)^(step / S) during the warm-up
-        of S = ``temperature_steps`` steps, then the model's T (``model.affinity_temperature``)."""
-        final, config = self.config.model_config.affinity_temperature, self.config
+        """The affinity temperature of an optimiser step: T_0 (T / T_0)^(step / S) during the warm-up, then T.
+
+        Args:
+            step: the step, 0-based.
+
+        Returns:
+            The temperature; S = ``temperature_steps``, T_0 = ``temperature_start``, T the model's
+            ``affinity_temperature``.
+        """
+        final, config = self.final_temperature, self.config
         if step >= config.temperature_steps:
             return final
         return config.temperature_start * (final / config.temperature_start) ** (step / config.temperature_steps)
 
     def _restore(self, state: dict) -> None:
-        missing = [k for k in ("optimizer", "step", "rng", "best_val", "elapsed_seconds") if k not in state]
-        if missing:
-            raise ValueError(f"{self.out_dir / 'last.pt'} holds no training state (missing {missing}); "
-                             "only a last.pt written by the trainer can be resumed")
-        stored = TrainConfig.from_dict(state["config"]).to_dict()  # fields added since then take their defaults
-        check_config_matches(stored["model"], self.config.model, "model config")
-        stored_run = {k: v for k, v in stored.items() if k not in RESUMABLE_CHANGES}
-        check_config_matches(stored_run, self.config.run_defining(), "training config")
-        stored_total = min(stored["epochs"] * self.steps_per_epoch, stored.get("max_steps") or math.inf)
-        if self.config.lr_schedule != "constant" and stored_total != self.total_steps:
-            raise ValueError(
-                f"the {self.config.lr_schedule} learning-rate schedule spans the run's {stored_total} steps; "
-                f"resume it with the same epochs / max_steps (this run asks for {self.total_steps} steps)"
-            )
-        if state.get("world_size", 1) != self.dist.world_size:
-            raise ValueError(
-                f"the checkpoint was written by a run of {state.get('world_size', 1)} process(es); resume it with "
-                f"the same number (this run has {self.dist.world_size}) to continue it exactly"
-            )
+        """Continue from ``last.pt``'s state, refusing a checkpoint of another run."""
+        stored = TrainConfig.from_dict(state["config"]).to_dict() if "config" in state else {}
+        stored_total = min(stored.get("epochs", 0) * self.steps_per_epoch, stored.get("max_steps") or math.inf)
+        check_resumable(state, self.out_dir / "last.pt", stored, self.config.to_dict(), RESUMABLE_CHANGES,
+                        stored_total, self.total_steps, self.config.lr_schedule, self.dist.world_size)
         self.model.load_state_dict(state["model"], strict=True)
         self.optimizer.load_state_dict(state["optimizer"])
         self.step = int(state["step"])
@@ -572,65 +473,22 @@ class Trainer:
         self.latent_generator.set_state(state["rng"]["latent"][self.dist.rank])
         self._last_saved = f"the last checkpoint (step {self.step}) is kept"
 
-    def _rng_states(self) -> dict[str, list[torch.Tensor]]:
-        """Every rank's generator states (a collective call when several processes train)."""
-        mine = {"loss": self.loss_generator.get_state(), "latent": self.latent_generator.get_state()}
-        if not self.dist.enabled:
-            return {k: [v] for k, v in mine.items()}
-        import torch.distributed as dist
-
-        out = {}
-        for key, state in mine.items():
-            state = state.to(self.device)  # nccl gathers CUDA tensors, gloo CPU ones
-            gathered = [torch.empty_like(state) for _ in range(self.dist.world_size)]
-            dist.all_gather(gathered, state)
-            out[key] = [g.cpu() for g in gathered]
-        return out
-
-    def _check_weights(self, step: int, values: dict[str, float]) -> None:
-        """Raise :class:`TrainingDiverged` if the update of ``step`` made a weight NaN or infinite."""
-        params = list(self.model.parameters())
-        if bool(torch.stack([torch.isfinite(p).all() for p in params]).all()):
-            return
-        bad = [name for name, p in self.model.named_parameters() if not bool(torch.isfinite(p).all())]
-        raise TrainingDiverged(step, [f"weights after the update ({_first_names(bad)})"], values, self._last_saved)
-
     def save(self, seconds: float) -> None:
-        """Write ``last.pt`` (rank 0; every rank takes part in gathering the generator states)."""
-        rng = self._rng_states()
-        if not self.dist.is_main:
-            return
-        save_checkpoint(
-            self.out_dir / "last.pt", self.config.to_dict(), self.model.state_dict(),
-            optimizer=self.optimizer.state_dict(), step=self.step, epoch=self.step // self.steps_per_epoch,
-            rng=rng, best_val=self.best_val, best_step=self.best_step, world_size=self.dist.world_size,
-            elapsed_seconds=self.elapsed + seconds,
-        )
-        self._last_saved = f"the last checkpoint (step {self.step}, {self.out_dir / 'last.pt'}) is kept"
+        """Write ``last.pt`` (rank 0; every rank takes part in gathering the generator states).
 
-    # -------------------------------------------------------------------------------- logs
-
-    _LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",) + VALIDATION_SCORES
-
-    def _prepare_log(self, resume: bool) -> None:
-        """Start log.csv, or on resume drop the rows written after the checkpoint's step."""
-        path = self.out_dir / "log.csv"
-        rows = []
-        if resume and path.is_file():
-            with path.open(newline="") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= self.step]
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, self._LOG_FIELDS)
-            writer.writeheader()
-            writer.writerows(rows)
+        Args:
+            seconds: training seconds of this session so far.
+        """
+        rng = gather_rng_states({"loss": self.loss_generator, "latent": self.latent_generator}, self.dist,
+                                self.device)
+        if self.dist.is_main:
+            self._last_saved = save_last(
+                self.out_dir / "last.pt", self.config.to_dict(), self.model, self.optimizer, self.step,
+                self.step // self.steps_per_epoch, rng, self.best_val, self.best_step, self.dist.world_size,
+                self.elapsed + seconds)
 
     def _log(self, split: str, values: dict[str, float], seconds: float) -> None:
-        if not self.dist.is_main:
-            return
-        row = {"step": self.step, "epoch": self.step // self.steps_per_epoch, "split": split,
-               **{k: f"{v:.6g}" for k, v in values.items()}, "seconds": f"{self.elapsed + seconds:.1f}"}
-        with (self.out_dir / "log.csv").open("a", newline="") as f:
-            csv.DictWriter(f, self._LOG_FIELDS).writerow(row)
+        self.log.write(self.step, self.step // self.steps_per_epoch, split, values, self.elapsed + seconds)
 
     # ------------------------------------------------------------------------------ steps
 
@@ -669,24 +527,18 @@ class Trainer:
             raise TrainingDiverged(self.step + 1, bad, {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
         self.optimizer.zero_grad(set_to_none=True)
         terms.total.backward()
-        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
-        if not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
-            names = [n for n, p in self.model.named_parameters()
-                     if p.grad is not None and not bool(torch.isfinite(p.grad).all())]
-            raise TrainingDiverged(self.step + 1, [f"gradients ({_first_names(names)})"],
-                                   {k: numbers[k] for k in LOSS_TERMS}, self._last_saved)
+        losses = {k: numbers[k] for k in LOSS_TERMS}
+        check_gradients(self.model, self.step + 1, losses, self._last_saved)
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate(self.step)
         self.optimizer.step()
-        self._check_weights(self.step + 1, {k: numbers[k] for k in LOSS_TERMS})
+        check_finite_weights(self.model, self.step + 1, losses, self._last_saved)
         return numbers, bool(flag.item() > 0)
 
     def _validation_scores(self) -> dict[str, float]:
         """mIoU (label transfer within the validation split), N_AC and box distance of the network now."""
         if self.val_set.labels is None or len(self.val_set) < 2:
             return {}
-        from .evaluation import predict_cuboids, segmentation_scores  # evaluation imports this module
-
         pred, _ = predict_cuboids(self.model, self.val_set, self.config.batch_size,
                                   self.loss_config.centers_from_allocation)
         scores = segmentation_scores(self.val_set, pred)
@@ -727,7 +579,11 @@ class Trainer:
             )
 
     def run(self) -> TrainResult:
-        """Train until the step budget or the time budget is used up; checkpoint and validate."""
+        """Train until the step budget (``epochs`` / ``max_steps``) or the time budget is used up.
+
+        Returns:
+            The :class:`TrainResult`; the run validates and writes ``last.pt`` where it stops.
+        """
         from tqdm import tqdm
 
         config = self.config
@@ -752,6 +608,8 @@ class Trainer:
                     perm, perm_epoch = self._permutation(epoch), epoch
                 batch = perm[position * config.batch_size:(position + 1) * config.batch_size][shard]
                 self.last_terms, over = self._train_step(batch.to(self.device), time.monotonic() >= deadline)
+                if self.core_share is not None:
+                    self.core_share.step()
                 self.step += 1
                 self._log("train", self.last_terms, time.monotonic() - start)
                 bar.update(1)
@@ -788,14 +646,22 @@ FINETUNE_DIR = "finetune"
 
 def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str | os.PathLike,
                         resume: bool = False, quiet: bool = False) -> tuple[TrainResult | None, TrainResult]:
-    """The committed networks' recipe in one call: train ``config`` in ``out_dir``, then train ``finetune``
-    from the first stage's ``best.pt`` in ``out_dir/finetune``.
+    """The committed networks' two-stage recipe: ``config`` in ``out_dir``, then ``finetune`` from its ``best.pt``.
 
-    ``finetune.init_from`` is replaced by ``out_dir/best.pt``. Both stages must select the same shapes (the
-    fields of :data:`DATA_FIELDS`), else ``ValueError`` before any training. Under ``torchrun`` both stages share one
-    process group. ``resume``: continue the second stage if it has begun (the first is then done and
-    skipped, its result None), else resume the first and run the second.
-    Returns the two stages' :class:`TrainResult` (the released network is the second stage's ``best.pt``).
+    Under ``torchrun`` both stages share one process group.
+
+    Args:
+        config: the first stage.
+        finetune: the second stage, run in ``out_dir/finetune``; its ``init_from`` becomes ``out_dir/best.pt``.
+            It must select the same shapes (the fields of :data:`DATA_FIELDS`), else ``ValueError`` before
+            any training.
+        out_dir: the first stage's run folder.
+        resume: continue the second stage if it has begun (the first is then skipped), else resume the first.
+        quiet: print no progress.
+
+    Returns:
+        The two stages' :class:`TrainResult`, the first None when it was skipped; the released network is
+        the second stage's ``best.pt``.
 
     Example::
 
@@ -812,7 +678,7 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
     out_dir = Path(out_dir)
     second_dir = out_dir / FINETUNE_DIR
     second = finetune.replace(init_from=str(out_dir / "best.pt"))
-    group = _Distributed()
+    group = Distributed()
     group.start(resolve_device(config.device))  # the Trainers below then find it and leave it open
     try:
         first_result = None
@@ -830,16 +696,21 @@ def train_with_snapshots(config: TrainConfig, out_dir: str | os.PathLike, stops:
                          quiet: bool = True) -> tuple[TrainResult | None, dict[int, dict[str, torch.Tensor]]]:
     """Train ``config`` for ``stops[-1]`` steps in ``out_dir``, keeping the weights at step 0 and at each stop.
 
-    The run stops at every step of ``stops`` and is resumed from there (a resumed run continues exactly where it
-    stopped, so these are the weights of one uninterrupted run); the weights of each stop are written to
-    ``out_dir/snapshot_<step>.pt`` (a checkpoint, loaded with ``weights_only``). A second call with the same
-    configuration reuses the folder: a finished run is read back without training, an interrupted one
-    continues. A folder that holds a run of another configuration is refused, never overwritten.
+    The run stops and resumes at every stop, which gives the weights of one uninterrupted run; each is
+    written to ``out_dir/snapshot_<step>.pt``. A second call with the same config reuses the folder (a
+    finished run is read back, an interrupted one continues); a run of another config is refused.
 
-    config: the run (``max_steps`` is replaced by ``stops[-1]``; ``max_minutes`` must be None, since a time
-    budget could stop the run between two stops, and the learning rate constant); stops: increasing step counts; splits: as for :class:`Trainer`.
-    Returns ``(result, snapshots)``: the :class:`TrainResult` of the last piece trained (None when nothing was
-    left to train) and ``{step: state_dict}`` for step 0 and every stop.
+    Args:
+        config: the run; ``max_steps`` is replaced by ``stops[-1]``, ``max_minutes`` must be None and the
+            learning rate constant.
+        out_dir: the run folder.
+        stops: increasing step counts.
+        splits: as for :class:`Trainer`.
+        quiet: print no progress.
+
+    Returns:
+        ``(result, snapshots)``: the :class:`TrainResult` of the last piece trained (None when nothing was
+        left to train) and ``{step: state_dict}`` for step 0 and every stop.
 
     Example::
 
@@ -851,7 +722,7 @@ def train_with_snapshots(config: TrainConfig, out_dir: str | os.PathLike, stops:
     if not stops:
         raise ValueError("stops is empty: give the steps at which to keep the weights, e.g. (100, 200, 400)")
     for stop in stops:
-        _check_int(stop, "every step of stops", 1)
+        check_int(stop, "every step of stops", 1)
     if any(b <= a for a, b in zip(stops, stops[1:])):
         raise ValueError(f"stops must increase, got {stops}")
     if config.max_minutes is not None:

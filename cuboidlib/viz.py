@@ -1,24 +1,14 @@
-"""Figures of cuboid abstractions: points coloured by cuboid, translucent cuboids (Figs. 1, 6, 7, 9).
+"""Figures of cuboid abstractions: points coloured by cuboid, translucent cuboids (Figs. 1, 6, 7, 9, 13).
 
-Colours follow one rule everywhere in the course: cuboid index m is drawn with ``PALETTE[m]``
-(:func:`cuboid_color`), in every shape, lesson and export, like the paper's figures where "the same
-colour represents the cuboids of the same serial number".
+Interactive plotly figures, their static matplotlib twins, and :func:`show_figure` to show both in one
+notebook output. Cuboid m is drawn in ``PALETTE[m]`` in every figure and export, as in the paper ("the same
+colour represents the cuboids of the same serial number"). Axes: +y up, shapes facing +z
+(:mod:`cuboidlib.normalization`); at most ``max_points`` evenly spaced points are drawn per shape.
 
-- :func:`plot_cuboids_plotly` gives an interactive plotly figure of one shape (points as markers,
-  every existing cuboid as a translucent ``Mesh3d`` with its edges); :func:`plot_cuboids_plotly_grid`
-  puts several shapes side by side; :func:`plot_cuboids_plotly_slider` shows a sequence of shapes
-  (an interpolation path, Fig. 13) one at a time in one scene, chosen with a slider.
-- :func:`plot_cuboids_matplotlib` draws the same picture on a matplotlib 3D axes (static, for
-  PNG outputs and papers); :func:`plot_cuboids_matplotlib_grid` makes a figure of several shapes.
-
-Figures stay small: at most ``max_points`` points are drawn per shape (an evenly spaced subset, so
-the choice is deterministic) and coordinates are rounded to ``decimals`` places. Axes follow the
-course's convention (+y up, shapes facing +z, see :mod:`cuboidlib.normalization`).
-
-Inputs: ``points`` (N, 3) and ``labels`` (N,) (cuboid index of every point, or None) of ONE shape,
-numpy or torch; ``cuboids`` either a :class:`~cuboidlib.geometry.Cuboids` batch together with the
-``index`` of the shape, or a tuple ``(centers (M, 3), quaternions (M, 4), half_sizes (M, 3))``;
-``exists`` an optional (M,) boolean mask (default: the batch's ``exists`` if set, else all).
+Inputs of every function: ``points`` (N, 3) and ``labels`` (N,) (cuboid index of every point, or None) of
+ONE shape, numpy or torch; ``cuboids`` a :class:`~cuboidlib.geometry.Cuboids` batch with the ``index`` of the
+shape, or a tuple ``(centers (M, 3), quaternions (M, 4), half_sizes (M, 3))``; ``exists`` an optional (M,)
+bool mask (default: the batch's ``exists`` if set, else all).
 """
 
 from __future__ import annotations
@@ -63,7 +53,14 @@ _EDGES = tuple((a, a | (1 << bit)) for a in range(8) for bit in range(3) if not 
 
 
 def cuboid_color(m: int) -> str:
-    """Hex colour of cuboid index ``m`` (the same in every figure of the course)."""
+    """Hex colour of cuboid index ``m``, the same in every figure of the course.
+
+    Args:
+        m: a cuboid index >= 0.
+
+    Returns:
+        ``PALETTE[m % 30]``, e.g. ``"#1f77b4"``.
+    """
     if not isinstance(m, (int, np.integer)) or isinstance(m, bool) or m < 0:
         raise ValueError(f"cuboid index must be a non-negative integer, got {m!r}")
     return PALETTE[int(m) % len(PALETTE)]
@@ -100,7 +97,7 @@ def _one_shape_cuboids(cuboids, exists, index: int) -> tuple[np.ndarray, np.ndar
             raise ValueError(f"{name} must describe ONE shape, shape (M, ...), got shape {tuple(x.shape)}")
     mask = None if exists is None else _to_numpy(exists)[None]
     c, q, s, mask = validate_cuboids(c[None], q[None], s[None], mask)
-    corners = cuboid_corners(c, q, s, validate=False)[0].double().numpy()
+    corners = cuboid_corners(c, q, s, validate=False)[0].double().numpy()  # (M, 8, 3)
     keep = np.ones(c.shape[1], dtype=bool) if mask is None else mask[0].numpy()
     return corners, keep
 
@@ -209,12 +206,21 @@ def plot_cuboids_plotly(
 ):
     """Interactive 3D figure of one shape: points coloured by cuboid and translucent cuboids.
 
-    points (N, 3), labels (N,) cuboid index per point (or None), cuboids and exists as in the
-    module docstring. Every existing cuboid m is a ``Mesh3d`` (12 triangles, ``opacity``) plus its
-    12 edges, in ``cuboid_color(m)``; each label group is one ``Scatter3d`` of markers named
-    "cuboid m" (one legend entry per group toggles its points and its cuboid together), or "cuboid m:
-    NAME" when ``names`` (a sequence with the part name of every cuboid index, None where unknown)
-    says which part cuboid m is. Equal aspect ratio, +y up. Returns a ``plotly.graph_objects.Figure``.
+    One legend entry per cuboid m toggles its points and its cuboid together.
+
+    Args:
+        points, labels, cuboids, exists, index: the shape (module docstring).
+        opacity: of the cuboids' faces, in [0, 1]; edges are opaque.
+        max_points: points drawn at most.
+        point_size: marker size.
+        decimals: coordinates are rounded to this many places (a smaller figure).
+        title: optional title.
+        width, height: in pixels.
+        names: optional part name of every cuboid index (None where unknown); the legend then reads
+            "cuboid m: NAME".
+
+    Returns:
+        A ``plotly.graph_objects.Figure``.
     """
     import plotly.graph_objects as go
 
@@ -241,9 +247,15 @@ def plot_cuboids_plotly_grid(
 ):
     """Several shapes side by side in one interactive figure (one 3D scene each, no legend).
 
-    items: a sequence of ``(points, labels, cuboids)`` or ``(points, labels, cuboids, exists)`` or
-    ``(points, labels, cuboids, exists, index)`` tuples, each as in :func:`plot_cuboids_plotly`.
-    ``size`` is the width and height of one panel in pixels. Returns a plotly ``Figure``.
+    Args:
+        items: ``(points, labels, cuboids[, exists[, index]])`` tuples, each as in :func:`plot_cuboids_plotly`.
+        titles: optional, one per item.
+        cols: panels per row.
+        opacity, max_points, point_size, decimals: as for :func:`plot_cuboids_plotly`, per panel.
+        size: width and height of one panel in pixels.
+
+    Returns:
+        A ``plotly.graph_objects.Figure``.
     """
     from plotly.subplots import make_subplots
 
@@ -290,16 +302,21 @@ def plot_cuboids_plotly_slider(
     width: int = 560,
     height: int = 540,
 ):
-    """A sequence of shapes in ONE interactive scene, shown one at a time with a slider (e.g. the
-    steps of an interpolation, Fig. 13).
+    """A sequence of shapes in ONE interactive scene, one at a time, chosen with a slider (Fig. 13).
 
-    items: a sequence of ``(points, labels, cuboids[, exists[, index]])`` tuples as in
-    :func:`plot_cuboids_plotly_grid` (points may be an empty (0, 3) array for decoded shapes);
-    step_labels: the slider's label of every item (default "0", "1", ...); active: the item shown
-    first. Every item's traces are in the figure and slider step k makes exactly item k's traces
-    visible (a ``restyle`` of ``visible``, so the camera stays where the user turned it). The axes
-    are fixed to one cube that encloses every item, so the shapes keep their scale and position
-    from step to step. Returns a ``plotly.graph_objects.Figure``.
+    The slider restyles visibility only, so the camera stays where the user turned it, and the axes are
+    one cube that encloses every item, so the shapes keep their scale and position from step to step.
+
+    Args:
+        items: ``(points, labels, cuboids[, exists[, index]])`` tuples as in :func:`plot_cuboids_plotly_grid`
+            (points may be an empty (0, 3) array for decoded shapes).
+        step_labels: the slider's label of every item (default "0", "1", ...).
+        title: optional title.
+        active: the item shown first.
+        opacity, max_points, point_size, decimals, width, height: as for :func:`plot_cuboids_plotly`.
+
+    Returns:
+        A ``plotly.graph_objects.Figure``.
     """
     import plotly.graph_objects as go
 
@@ -360,13 +377,18 @@ def plot_cuboids_matplotlib(
     title: str | None = None,
     view: tuple[float, float] = (20.0, -60.0),
 ):
-    """Static version of :func:`plot_cuboids_plotly` on a matplotlib 3D axes ``ax``.
+    """Static version of :func:`plot_cuboids_plotly` on a matplotlib 3D axes (+y vertical, axes equal and hidden).
 
-    ``ax`` must be a 3D axes (``fig.add_subplot(projection="3d")``). Points are drawn coloured by
-    cuboid, every existing cuboid as a ``Poly3DCollection`` of its 6 faces (face colour with
-    ``alpha``, edges opaque) in ``cuboid_color(m)``. +y is drawn vertical and the shape's front
-    (+z) faces the viewer; axes are equal and hidden. ``view`` is (elevation, azimuth) in degrees.
-    Returns ``ax``.
+    Args:
+        ax: a 3D axes, e.g. ``fig.add_subplot(projection="3d")``.
+        points, labels, cuboids, exists, index: the shape (module docstring).
+        alpha: opacity of the cuboids' faces, in [0, 1]; edges are opaque.
+        max_points, point_size: as for :func:`plot_cuboids_plotly`.
+        title: optional title.
+        view: (elevation, azimuth) in degrees.
+
+    Returns:
+        ``ax``.
     """
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
@@ -406,9 +428,17 @@ def plot_cuboids_matplotlib_grid(
     panel_size: float = 3.0,
     **kwargs,
 ):
-    """A matplotlib figure with one 3D panel per shape; items as in :func:`plot_cuboids_plotly_grid`.
+    """A matplotlib figure with one 3D panel per shape.
 
-    Extra keyword arguments go to :func:`plot_cuboids_matplotlib`. Returns the ``Figure``.
+    Args:
+        items: as for :func:`plot_cuboids_plotly_grid`.
+        titles: optional, one per item.
+        cols: panels per row.
+        panel_size: width and height of one panel in inches (3.0 at 100 dpi gives 300 pixels).
+        **kwargs: passed to :func:`plot_cuboids_matplotlib`.
+
+    Returns:
+        A matplotlib ``Figure``.
     """
     import matplotlib.pyplot as plt
 
@@ -472,9 +502,12 @@ def figure_bundle(fig, static, dpi: int = 110) -> dict:
 
 
 def show_figure(fig, static, dpi: int = 110) -> None:
-    """Display ``fig`` (plotly) and its static twin ``static`` (matplotlib) as one notebook output.
+    """Display a plotly figure and its static matplotlib twin as one notebook output.
 
-    The arguments are those of :func:`figure_bundle`. Outside IPython nothing is shown.
+    JupyterLab draws the plotly figure, GitHub and nbconvert HTML the PNG. Outside IPython nothing is shown.
+
+    Args:
+        fig, static, dpi: as for :func:`figure_bundle`.
     """
     bundle = figure_bundle(fig, static, dpi)
     try:

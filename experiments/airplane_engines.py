@@ -36,10 +36,10 @@ import numpy as np
 import torch
 
 from cuboidlib import load_trained_model
-from cuboidlib._files import write_text_atomic
 from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import predict_cuboids
+from cuboidlib.files import write_text_atomic
 from cuboidlib.metrics import transfer_part_labels
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.geometry import Cuboids
@@ -121,8 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"engine points in slots named 'engine': {in_named_engine} of {total_engine}")
 
     # 2. refit from the network's allocation and from the split one
-    fit = FitConfig(steps=args.steps, lambda_compact=loss.lambda_compact, compactness_average=loss.compactness_average,
-                    sigma_s=loss.sigma_s, eps_sps=loss.eps_sps, distance=loss.distance, normalize=False)
+    fit = FitConfig(steps=args.steps, normalize=False, loss={k: getattr(loss, k) for k in ("lambda_compact", "compactness_average",
+                    "sigma_s", "eps_sps", "distance")})
     with_engines = [i for i in range(len(test)) if int((test.labels[i] == engine).sum()) >= 50][:args.shapes]
     refits = []
     for i in with_engines:

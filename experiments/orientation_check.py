@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cuboidlib._files import write_text_atomic
 from cuboidlib.abstraction import ORIENTATION_RATIO, frame_rotation, up_axis_scores
 from cuboidlib.dataset import load_splits
+from cuboidlib.files import write_text_atomic
 from cuboidlib.release import read_card
 from cuboidlib.train import TrainConfig
 

@@ -68,11 +68,11 @@ except ImportError:  # pragma: no cover
 
 import torch
 
-from cuboidlib._files import write_text_atomic
 from cuboidlib.checkpoint import load_model
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
 from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
 from cuboidlib.evaluation import evaluate_baseline, predict_cuboids, score_cuboids
+from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.losses import compactness_loss
 from cuboidlib.model import CuboidAbstractionNet

@@ -46,10 +46,10 @@ import numpy as np
 import torch
 
 from cuboidlib import load_trained_model
-from cuboidlib._files import write_text_atomic
 from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import label_transfer_split, predict_cuboids
+from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.geometry import Cuboids, quaternion_to_rotation_matrix
 from cuboidlib.metrics import mean_iou, transfer_part_labels
@@ -139,8 +139,8 @@ def analyse(name: str, n_refits: int, steps: int) -> dict:
     spacing = float(torch.stack([torch.cdist(test.points[j], test.points[j]).fill_diagonal_(float("inf"))
                                  .min(dim=1).values.median() for j in scored[:20].tolist()]).median())
 
-    fit = FitConfig(steps=steps, lambda_compact=loss.lambda_compact, compactness_average=loss.compactness_average,
-                    sigma_s=loss.sigma_s, eps_sps=loss.eps_sps, distance=loss.distance, normalize=False)
+    fit = FitConfig(steps=steps, normalize=False, loss={k: getattr(loss, k) for k in ("lambda_compact", "compactness_average",
+                    "sigma_s", "eps_sps", "distance")})
     refits = []
     for j in range(len(test)):
         if len(refits) == n_refits or not mixed:

@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from cuboidlib._files import write_text_atomic
+from cuboidlib.files import write_text_atomic
 
 __all__ = ["result_rows", "summarize", "mean_sd", "paper_value", "text_table", "CD_CONVENTION", "machine",
            "write_results"]

@@ -7,6 +7,18 @@ import os
 import pytest
 import torch
 
+from cuboidlib import kernels
+
+
+@pytest.fixture(autouse=True)
+def reference_code_by_default(monkeypatch):
+    """The library's tests run the PyTorch code, the reference, in this process and in the commands they start;
+    the tests of the compiled kernels ask for them (tests/test_kernels.py). The lessons run as a learner's do."""
+    monkeypatch.setenv(kernels.ENV, "0")
+    kernels.disable()
+    yield
+    kernels.disable()
+
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory):

@@ -22,3 +22,13 @@ def test_bench_model_prints_the_step_and_its_lower_bound():
     assert list(parts)[:3] == ["kNN graphs", "EdgeConv products", "global feature products"], proc.stdout
     total = parts.pop("sum: a lower bound for the step")
     assert abs(total - sum(parts.values())) <= 0.002  # printed with three decimals
+
+
+def test_bench_abstract_prints_the_three_orientation_choices_and_the_threads():
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_abstract.py"), "--repeats", "1",
+                           "--fit-steps", "3"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    ratios = [float(r) for r in re.findall(r"\(([\d.]+)x up='y'\)", proc.stdout)]
+    assert len(ratios) == 3 and ratios[0] == 1.0, proc.stdout
+    rows = re.findall(r"1 thread\s+([\d.]+) s, 2 threads\s+([\d.]+) s, default\s+([\d.]+) s", proc.stdout)
+    assert len(rows) == 2, proc.stdout

@@ -18,7 +18,8 @@ import torch
 from cuboidlib.checkpoint import load_model
 from cuboidlib.dataset import load_splits
 from cuboidlib.distance import point_to_cuboid_distance
-from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig
+from cuboidlib.edgeconv_fast import FastEdgeConv
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.neighbors import knn_indices
 from cuboidlib.train import TrainConfig, Trainer
 

@@ -62,17 +62,17 @@ def _inside_depth(points: torch.Tensor, cuboids: Cuboids) -> torch.Tensor:
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"distance": "chamfer"}, "distance must be one of"),
-        ({"allocation": "hard"}, "allocation must be one of"),
+        ({"loss": {"distance": "chamfer"}}, "distance must be one of"),
+        ({"loss": {"allocation": "hard"}}, "allocation must be one of"),
         ({"init": "grid"}, "init must be one of"),
         ({"num_cuboids": 0}, "num_cuboids must be a positive integer"),
         ({"num_cuboids": 2.5}, "num_cuboids must be a positive integer"),
         ({"steps": -1}, "steps must be a non-negative integer"),
         ({"lr": 0.0}, "lr must be a finite positive number"),
         ({"lr_logits": float("nan")}, "lr_logits must be a finite positive number"),
-        ({"sigma_s": -0.1}, "sigma_s must be a finite non-negative number"),
-        ({"lambda_compact": float("inf")}, "lambda_compact must be a finite non-negative number"),
-        ({"eps_ext": 1.0}, r"eps_ext must lie in \[0, 1\)"),
+        ({"loss": {"sigma_s": -0.1}}, "sigma_s must be a finite non-negative number"),
+        ({"loss": {"lambda_compact": float("inf")}}, "lambda_compact must be a finite non-negative number"),
+        ({"loss": {"eps_ext": 1.0}}, r"eps_ext must lie in \[0, 1\)"),
         ({"beta2": 1.0}, r"beta2 must lie in \[0, 1\)"),
         ({"seed": -1}, "seed must be a non-negative integer"),
         ({"restarts": 0}, "restarts must be a positive integer"),
@@ -84,8 +84,9 @@ def test_fit_config_rejects_bad_values(kwargs, match):
 
 
 def test_fit_config_replace_changes_one_field_and_validates():
-    config = FitConfig().replace(distance="nearest_surface", steps=5)
-    assert (config.distance, config.steps, config.num_cuboids) == ("nearest_surface", 5, FitConfig().num_cuboids)
+    config = FitConfig().replace(loss={"distance": "nearest_surface"}, steps=5)
+    assert (config.loss.distance, config.steps, config.num_cuboids) == ("nearest_surface", 5, FitConfig().num_cuboids)
+    assert config.loss.compactness_average, "the other loss settings are kept"
     with pytest.raises(ValueError, match="steps"):
         FitConfig().replace(steps=-3)
 
@@ -126,7 +127,7 @@ def test_fit_result_shapes_and_invariants(two_boxes, two_box_fit):
     torch.testing.assert_close(r.cuboids.quaternions.norm(dim=-1), torch.ones(1, 6))
     assert (r.cuboids.half_sizes > 0).all()
     # existence read-out: w_m > eps_ext (Sec. 3.4.3), and labels only name existing cuboids
-    assert torch.equal(r.exists, r.portions > r.config.eps_ext)
+    assert torch.equal(r.exists, r.portions > r.config.loss.eps_ext)
     assert r.exists.gather(1, r.labels).all()
     assert set(r.history) == {"total", "reconstruction", "compactness", "existing"}
     assert all(len(v) == 200 for v in r.history.values())
@@ -179,7 +180,7 @@ def test_both_distances_start_from_the_same_cuboids(two_boxes):
     points, normals, _ = two_boxes
     config = FitConfig(num_cuboids=5, steps=3)
     a = fit_cuboids(points, normals, config)
-    b = fit_cuboids(points, normals, config.replace(distance="nearest_surface", lambda_compact=0.0, sigma_s=0.0))
+    b = fit_cuboids(points, normals, config.replace(loss={"distance": "nearest_surface", "lambda_compact": 0.0, "sigma_s": 0.0}))
     for name in ("centers", "quaternions", "half_sizes"):
         assert torch.equal(getattr(a.initial, name), getattr(b.initial, name))
 
@@ -230,7 +231,7 @@ def test_batched_fit_fits_each_shape_independently(one_box, two_boxes):
 
 def test_nearest_allocation_gives_a_one_hot_w(two_boxes):
     points, normals, _ = two_boxes
-    r = fit_cuboids(points, normals, FitConfig(num_cuboids=4, steps=20, allocation="nearest"))
+    r = fit_cuboids(points, normals, FitConfig(num_cuboids=4, steps=20, loss={"allocation": "nearest_cuboid"}))
     assert set(r.W.unique().tolist()) <= {0.0, 1.0}
     torch.testing.assert_close(r.W.sum(dim=-1), torch.ones(1, 600))
 
@@ -243,7 +244,7 @@ def test_the_literal_eq6_weight_merges_more_than_the_averaged_form():
     )
     config = FitConfig(num_cuboids=6, steps=150)
     averaged = fit_cuboids(points, normals, config)
-    literal = fit_cuboids(points, normals, config.replace(compactness_average=False))
+    literal = fit_cuboids(points, normals, config.replace(loss={"compactness_average": False}))
     assert int(averaged.num_existing()) >= 3
     assert int(literal.num_existing()) < int(averaged.num_existing())
 
@@ -329,7 +330,7 @@ def test_config_must_be_a_fit_config():
 def test_divergence_is_reported_with_the_step(one_box, distance):
     points, normals, _ = one_box
     with pytest.raises(FloatingPointError, match=r"diverged at step \d+.*lower lr"):
-        fit_cuboids(points, normals, FitConfig(num_cuboids=3, steps=20, lr=1e4, distance=distance))
+        fit_cuboids(points, normals, FitConfig(num_cuboids=3, steps=20, lr=1e4, loss={"distance": distance}))
 
 
 def test_numpy_and_torch_inputs_agree():
@@ -394,3 +395,16 @@ def test_refinement_refuses_a_start_that_does_not_fit_the_points(two_boxes):
         fit_cuboids(points, normals, FitConfig(steps=1, restarts=2), start=start)
     with pytest.raises(TypeError, match="AbstractionBatch"):
         fit_cuboids(points, normals, FitConfig(steps=1), start=start.cuboids)
+
+
+def test_fit_config_builds_on_the_loss_config_and_refuses_what_only_a_network_uses():
+    from cuboidlib.losses import LossConfig
+
+    assert FitConfig().loss == LossConfig(compactness_average=True), "the fit's default is the averaged Eq. (6)"
+    assert FitConfig(loss={"sigma_s": 0.0}).loss.compactness_average, "a dict fills in the fit's defaults"
+    with pytest.raises(ValueError, match="only training a network uses"):
+        FitConfig(loss={"lambda_consistency": 0.2})
+    with pytest.raises(ValueError, match="no Chamfer variant"):
+        FitConfig(loss={"distance": "chamfer"})
+    with pytest.raises(ValueError, match="allocation"):
+        FitConfig(loss={"allocation": "soft"})

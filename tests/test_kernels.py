@@ -13,8 +13,9 @@ import pytest
 import torch
 
 from cuboidlib import kernels
+from cuboidlib.edgeconv_fast import FastEdgeConv, _EdgeMLP
 from cuboidlib.losses import LossConfig, total_loss
-from cuboidlib.model import CuboidAbstractionNet, FastEdgeConv, ModelConfig, _EdgeMLP
+from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.neighbors import knn_indices
 from cuboidlib.train import TrainConfig, Trainer
 
@@ -213,6 +214,31 @@ def test_trainer_enables_the_kernels_from_its_config(tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 
+@needs_compiler
+def test_by_default_the_first_use_builds_and_uses_the_kernels(monkeypatch):
+    monkeypatch.delenv(kernels.ENV)
+    monkeypatch.setattr(kernels, "_enabled", None)
+    assert kernels.enabled()
+
+
+def test_by_default_without_a_compiler_one_line_says_so_and_the_python_code_runs(monkeypatch, capsys):
+    monkeypatch.delenv(kernels.ENV)
+    monkeypatch.setattr(kernels, "_enabled", None)
+    monkeypatch.setattr(kernels, "_module", None)
+    monkeypatch.setattr(kernels, "_compiler", lambda: None)
+    assert not kernels.enabled()
+    assert not kernels.enabled(), "decided once"
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "compiled kernels are not used (no C++ compiler" in lines[0]
+
+
+@pytest.mark.parametrize("value", ["0", "off", "no"])
+def test_the_environment_turns_the_kernels_off(monkeypatch, value):
+    monkeypatch.setenv(kernels.ENV, value)
+    monkeypatch.setattr(kernels, "_enabled", None)
+    assert not kernels.enabled()
+
+
 def test_enable_without_a_compiler_says_so_and_leaves_the_python_code_on(monkeypatch):
     monkeypatch.setattr(kernels, "_module", None)
     monkeypatch.setattr(kernels, "_compiler", lambda: None)
@@ -223,5 +249,5 @@ def test_enable_without_a_compiler_says_so_and_leaves_the_python_code_on(monkeyp
 
 
 def test_train_config_rejects_a_non_boolean_switch():
-    with pytest.raises(ValueError, match="compiled_kernels must be true or false"):
+    with pytest.raises(ValueError, match="compiled_kernels must be true, false or null"):
         TrainConfig(compiled_kernels="yes")

@@ -265,6 +265,7 @@ from types import SimpleNamespace  # noqa: E402
 
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance  # noqa: E402
 from cuboidlib.losses import (  # noqa: E402
+    LOSS_TERMS,
     LossConfig,
     allocation_weighted_centers,
     existence_loss,
@@ -366,7 +367,7 @@ def test_total_loss_combines_the_terms_with_the_paper_weights():
     torch.testing.assert_close(terms.existence, exist)
     torch.testing.assert_close(terms.kl, kl)
     torch.testing.assert_close(terms.total, recons + 0.1 * compact + 0.01 * exist + 6e-6 * kl)
-    assert set(terms.as_floats()) == {"total", "reconstruction", "compactness", "existence", "kl"}
+    assert set(terms.as_floats()) == {"total", "reconstruction", "compactness", "existence", "kl", "consistency"}
 
 
 def test_total_loss_sampling_is_reproducible_with_a_generator():
@@ -499,3 +500,26 @@ def test_total_loss_adds_the_weighted_consistency_term():
 def test_slot_consistency_rejects_bad_shapes():
     with pytest.raises(ValueError, match=r"\(B, M, 3\)"):
         slot_consistency_loss(torch.zeros(2, 3, 2), torch.full((2, 3), 1 / 3))
+
+
+def test_the_slot_consistency_term_is_reported_and_weighted_into_the_total():
+    torch.manual_seed(0)
+    B, N, M = 3, 64, 4
+    points = torch.rand(B, N, 3)
+    normals = torch.nn.functional.normalize(torch.randn(B, N, 3), dim=-1)
+
+    class Output:
+        centers = torch.rand(B, M, 3)
+        quaternions = torch.nn.functional.normalize(torch.randn(B, M, 4), dim=-1)
+        half_sizes = torch.rand(B, M, 3) * 0.3 + 0.05
+        exist_logits = torch.randn(B, M)
+        W = torch.softmax(torch.randn(B, N, M), dim=-1)
+        mu = torch.randn(B, 8)
+        logvar = torch.randn(B, 8)
+
+    plain = total_loss(Output, points, normals, LossConfig(), torch.Generator().manual_seed(1))
+    weighted = total_loss(Output, points, normals, LossConfig(lambda_consistency=0.5), torch.Generator().manual_seed(1))
+    assert float(plain.consistency) > 0, "the spread of random centres is positive, and it is reported"
+    torch.testing.assert_close(weighted.consistency, plain.consistency)
+    torch.testing.assert_close(weighted.total - plain.total, 0.5 * plain.consistency)
+    assert set(plain.as_floats()) == set(LOSS_TERMS)

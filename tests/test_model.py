@@ -13,15 +13,15 @@ import pytest
 import torch
 from torch.func import functional_call
 
+from cuboidlib import edgeconv_fast
 from cuboidlib import kernels
 from cuboidlib import model as model_module
+from cuboidlib.edgeconv_fast import FastEdgeConv, FastGlobalFeature
 from cuboidlib.model import (
     read_normals_from_start,
     CuboidAbstractionNet,
     CuboidSegmentation,
     EdgeConv,
-    FastEdgeConv,
-    FastGlobalFeature,
     GlobalFeature,
     ModelConfig,
     allocation_saturation,
@@ -255,7 +255,7 @@ def test_fast_edgeconv_keeps_float32_accuracy_for_clouds_far_from_the_origin():
 
 
 def test_fast_edgeconv_chunks_are_larger_on_a_gpu_unless_given():
-    from cuboidlib.model import _EDGES_PER_CHUNK, _EDGES_PER_CHUNK_GPU
+    from cuboidlib.edgeconv_fast import _EDGES_PER_CHUNK, _EDGES_PER_CHUNK_GPU
 
     conv = FastEdgeConv(3, 4, k=16)
     assert conv._chunk_rows(torch.device("cpu")) == _EDGES_PER_CHUNK // 16
@@ -494,8 +494,9 @@ def test_float64_model_keeps_float64_and_code_is_device_agnostic():
     net = _net(dtype=torch.float64)
     out = net(_points(dtype=torch.float32))  # converted to the model's dtype
     assert out.W.dtype == out.centers.dtype == out.z.dtype == torch.float64
-    source = inspect.getsource(model_module)
-    assert ".cuda(" not in source and "'cuda'" not in source and '"cuda"' not in source
+    for module in (model_module, edgeconv_fast):
+        source = inspect.getsource(module)
+        assert ".cuda(" not in source and "'cuda'" not in source and '"cuda"' not in source, module.__name__
 
 
 # ----------------------------------------------------------------------------------------------

@@ -186,7 +186,8 @@ def test_validation_loss_is_a_deterministic_function_of_the_weights(tiny):
     a = validation_loss(model, splits["val"], config.loss_config, 4, seed=1)
     b = validation_loss(model, splits["val"], config.loss_config, 4, seed=1)
     assert a == b and model.training  # the training flag is restored
-    assert set(a) == {"total", "reconstruction", "compactness", "existence", "kl", "n_existing", "saturated", "affinity_gap"}
+    assert set(a) == {"total", "reconstruction", "compactness", "existence", "kl", "consistency", "n_existing", "saturated",
+                      "affinity_gap"}
 
 
 def test_resume_gives_bitwise_the_same_weights_as_an_uninterrupted_run(tmp_path, tiny):

@@ -1,0 +1,92 @@
+"""The library's structure: data flows down.
+
+``LAYERS`` is the one place where the order of cuboidlib's modules is written down. A module may import
+only modules of lower layers. Every import counts: at the top of a file, inside a function, or under
+``TYPE_CHECKING``. A function-local import of a cuboidlib module must say on its line why it waits (start-up
+time), so that one is never used to hide a cycle.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "cuboidlib"
+
+#: cuboidlib's modules from the bottom up. Each line is a layer; a module imports only from the lines above it.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("__init__", "_checks", "config", "files", "kernels"),    # plumbing: version, checks, configs, files, C++
+    ("neighbors", "geometry", "normalization", "solids"),     # kNN, cuboid geometry, the unit frame, solids
+    ("normals", "distance", "metrics", "shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
+    ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
+    ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
+    ("results", "runs"),                                      # the result types; a run's bookkeeping
+    ("applications", "baseline"),                             # trained networks' uses (Sec. 4.4), k-means boxes
+    ("fitting", "evaluation"),                                # the per-shape fit, the test-split scores
+    ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
+    ("release",),                                             # a trained run -> a committed network and card
+    ("cli",),                                                 # the command-line tool
+    ("__main__",),                                            # python -m cuboidlib
+)
+
+
+def _modules() -> set[str]:
+    return {p.stem for p in PACKAGE.glob("*.py")}
+
+
+def _imports(path: Path, modules: set[str]) -> list[tuple[int, str, bool]]:
+    """(line, imported module, inside a function) for every import of a cuboidlib module in ``path``."""
+    tree = ast.parse(path.read_text())
+    local = {id(node) for fn in ast.walk(tree) if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef))
+             for node in ast.walk(fn)}
+    found = []
+    for node in ast.walk(tree):
+        names: list[str] = []
+        if isinstance(node, ast.ImportFrom) and node.level == 1:
+            if node.module:
+                names = [node.module.split(".")[0]]
+            else:  # from . import x: a module, or a name of the package's __init__
+                names = [a.name if a.name in modules else "__init__" for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("cuboidlib"):
+            parts = node.module.split(".")
+            names = [parts[1]] if len(parts) > 1 else [a.name if a.name in modules else "__init__" for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name.split(".")[1] for a in node.names if a.name.startswith("cuboidlib.")]
+        found += [(node.lineno, name, id(node) in local) for name in names if name in modules]
+    return found
+
+
+def test_every_module_has_one_layer():
+    listed = [m for layer in LAYERS for m in layer]
+    assert len(listed) == len(set(listed)), "a module is listed twice"
+    assert set(listed) == _modules(), f"unlisted: {_modules() - set(listed)}; gone: {set(listed) - _modules()}"
+
+
+@pytest.mark.parametrize("module", sorted(_modules()))
+def test_a_module_imports_only_lower_layers(module):
+    level = {m: k for k, layer in enumerate(LAYERS) for m in layer}
+    upward = [f"line {line}: {name} (layer {level[name]})" for line, name, _ in _imports(PACKAGE / f"{module}.py",
+                                                                                          _modules())
+              if name != module and level[name] >= level[module]]
+    assert not upward, f"cuboidlib/{module}.py (layer {level[module]}) imports from its own or a higher layer: {upward}"
+
+
+def test_function_local_imports_say_why():
+    lines_without_reason = []
+    for path in sorted(PACKAGE.glob("*.py")):
+        source = path.read_text().splitlines()
+        for line, name, inside in _imports(path, _modules()):
+            if inside and "#" not in source[line - 1]:
+                lines_without_reason.append(f"{path.name}:{line} ({name})")
+    assert not lines_without_reason, ("function-local imports of cuboidlib modules must say why on their line "
+                                      f"(start-up time): {lines_without_reason}")
+
+
+def test_the_checker_sees_local_and_type_checking_imports(tmp_path):
+    source = ("from typing import TYPE_CHECKING\nfrom . import __version__\nif TYPE_CHECKING:\n"
+              "    from .train import TrainConfig\n\ndef f():\n    from .model import ModelConfig  # start-up time\n")
+    (tmp_path / "probe.py").write_text(source)
+    assert _imports(tmp_path / "probe.py", {"train", "model", "__init__"}) == [
+        (2, "__init__", False), (4, "train", False), (7, "model", True)]
