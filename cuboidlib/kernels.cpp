@@ -6,7 +6,7 @@
 // tensor, runs here as one loop.
 //
 // - smallest_k: the top-k selection of cuboidlib.neighbors.knn_indices (torch.topk, largest=False).
-// - edge_mlp_forward / edge_mlp_backward: the chunk loops of cuboidlib.model._EdgeMLP.forward and
+// - edge_mlp_forward / edge_mlp_backward: the chunk loops of cuboidlib.edgeconv_fast._EdgeMLP.forward and
 //   .backward. The matrix products stay ATen's (at::mm); the gathers, LeakyReLU, the max over
 //   neighbours with its argmax, the sums for BatchNorm and the scatters around them are fused. The
 //   backward pass also regroups its sums so that it needs two products per chunk instead of three.
