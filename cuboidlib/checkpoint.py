@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from . import __version__
+from .files import atomic_path
 from .model import CuboidAbstractionNet, ModelConfig
 
 __all__ = [
@@ -168,10 +169,8 @@ def save_checkpoint(path: str | os.PathLike, config: dict, model_state: dict, **
     }
     _check_plain(state, "checkpoint")
     check_checkpoint_values(state)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:  # a unique temporary name: two writers never share one
+        torch.save(state, tmp)
     return path
 
 

@@ -21,7 +21,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .files import MESH_FORMATS, write_text_atomic
+from .files import MESH_FORMATS, check_outputs_spare_inputs, write_text_atomic
 
 
 class UserError(Exception):
@@ -450,14 +450,23 @@ def _add_model_options(p) -> None:
     p.add_argument("--device", default="cpu", help="cpu (default), cuda[:i] or auto")
 
 
-def _check_out_dir(args) -> None:
-    """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them)."""
-    from .export import prepare_output_folder  # imports torch: start-up time
+def _check_out_dir(args, inputs=(), names=()) -> None:
+    """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them).
 
+    Before anything is removed, the files this run would write (``names`` in --out, the manifest and the summary)
+    and those --overwrite would remove are checked against ``inputs``: none may be an input or lie inside one.
+    """
+    from .export import MANIFEST, prepare_output_folder, read_manifest  # imports torch: start-up time
+
+    out = Path(args.out)
+    outputs = [out / n for n in (*names, MANIFEST, SUMMARY_FILE)]
+    manifest = read_manifest(out) if args.overwrite and out.is_dir() else None
+    outputs += [out / n for n in (manifest or {}).get("files", [])]
     try:
+        check_outputs_spare_inputs([out, *outputs], [i for i in inputs if Path(i).exists()], "--out")
         prepare_output_folder(args.out, args.overwrite)
     except ValueError as exc:
-        raise UserError(f"--out {exc}") from exc
+        raise UserError(f"--out {exc}" if not str(exc).startswith("--out") else str(exc)) from exc
 
 
 def _record(args, files, complete: bool = True) -> None:
@@ -555,22 +564,34 @@ def _shape_files(items: list[str]) -> list[str]:
     return list(dict.fromkeys(files))  # each file once, in order
 
 
-def _stem_for(path: str, taken: set[str]) -> str:
-    """A result name for ``path``: its file name without suffix, made unique within the run."""
-    stem, k = Path(path).stem, 1
-    while stem in taken:
-        k += 1
-        stem = f"{Path(path).stem}_{k}"
-    taken.add(stem)
-    return stem
+def _result_stems(paths: list[str], formats) -> list[str]:
+    """A result stem for every input: its file name without suffix, changed where one of the files it names
+    (``result_files``: NAME.json, NAME.<format>, NAME_segmentation.ply) is already another input's, so that
+    ``a.ply`` and ``a_segmentation.ply`` never write over each other's files."""
+    from .results import result_files  # imports torch: start-up time
+
+    stems, taken = [], set()
+    for path in paths:
+        base = stem = Path(path).stem
+        k = 1
+        while any(name in taken for name in result_files(stem, formats).values()):
+            k += 1
+            stem = f"{base}_{k}"
+        taken.update(result_files(stem, formats).values())
+        stems.append(stem)
+    return stems
 
 
 def _run_shapes(args, what: str, prepare) -> int:
     """The handler of fit and abstract: expand SHAPE, check --out, then abstract every shape with
     ``one = prepare()`` (``one(path, progress)`` -> a result), write its files and report. With several
     shapes a failure is reported and skipped, and SUMMARY_FILE lists every shape. Exit code 1 if any failed."""
+    from .results import result_files  # imports torch: start-up time
+
     shapes = _shape_files(args.shape)
-    _check_out_dir(args)
+    stems = _result_stems(shapes, args.mesh_format)
+    names = [n for stem in stems for n in result_files(stem, args.mesh_format).values()]
+    _check_out_dir(args, [*args.shape, *shapes], names)
     one = prepare()
 
     from tqdm import tqdm  # start-up time (a quarter of a second)
@@ -580,17 +601,17 @@ def _run_shapes(args, what: str, prepare) -> int:
         with tqdm(total=2, desc=what, disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
             result = one(shapes[0], _bars(args))
             bar.update(1)
-            written = _save(args, result, None, bar)
+            written = _save(args, result, stems[0], bar)
         _report(args, result, written, time.perf_counter() - start)
         _record(args, written)
         return 0
-    rows, files, taken = [], [], set()
-    for path in tqdm(shapes, desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
+    rows, files = [], []
+    for path, stem in tqdm(zip(shapes, stems), total=len(shapes), desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
         start = time.perf_counter()
         try:
             _check_shape_file(path)
             result = one(path, False)
-            written = _save(args, result, _stem_for(path, taken), None)
+            written = _save(args, result, stem, None)
         except (UserError, ValueError, OSError, FloatingPointError) as exc:
             message = " ".join(str(exc).split()) or type(exc).__name__
             message = message if path in message else f"{path}: {message}"
@@ -791,8 +812,11 @@ def _cmd_generate(args) -> int:
 
     from .applications import generate_shapes  # imports torch: start-up time
 
+    from .results import result_files  # imports torch: start-up time
+
     start = time.perf_counter()
-    _check_out_dir(args)
+    stems = _stems("generated", args.count)
+    _check_out_dir(args, [m for m in [args.model] if Path(m).is_file()], [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
     model, _, path = _load_model(args.model, args.device)
     decoded = generate_shapes(model, args.count, torch.Generator().manual_seed(args.seed), args.threshold)
     methods = [{"name": "generate", "checkpoint": str(path), "seed": args.seed, "sample": k,
@@ -803,7 +827,7 @@ def _cmd_generate(args) -> int:
         return (f"{args.count} shapes generated | cuboids used: {' '.join(map(str, used))} of "
                 f"{decoded.cuboids.num_cuboids}")
 
-    return _write_decoded(args, decoded, _stems("generated", args.count), methods, start, summary)
+    return _write_decoded(args, decoded, stems, methods, start, summary)
 
 
 def _add_interpolate_command(sub) -> None:
@@ -832,9 +856,13 @@ def _cmd_interpolate(args) -> int:
     start = time.perf_counter()
     if args.steps < 2:
         raise UserError(f"--steps must be at least 2 (the two ends), got {args.steps}")
-    _check_out_dir(args)
+    from .results import result_files  # imports torch: start-up time
+
     _check_input(args.shape_a)
     _check_input(args.shape_b)
+    stems = _stems("step", args.steps)
+    _check_out_dir(args, [args.shape_a, args.shape_b, *[m for m in [args.model] if Path(m).is_file()]],
+                   [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
     model, state, path = _load_model(args.model, args.device)
     n_points = args.points or _model_points(state)
     clouds = [_load_shape(shape, n_points, args.seed) for shape in (args.shape_a, args.shape_b)]
@@ -852,7 +880,7 @@ def _cmd_interpolate(args) -> int:
                 f"neighbouring steps {interp.max_step_change:.4g} ({interp.evenness:.2f} x the mean step; shape "
                 f"diagonal 1) | {int(interp.existence_changes.sum())} cuboid(s) appear or disappear")
 
-    return _write_decoded(args, interp.shapes, _stems("step", args.steps), methods, start, summary)
+    return _write_decoded(args, interp.shapes, stems, methods, start, summary)
 
 
 def _add_view_command(sub) -> None:

@@ -10,10 +10,16 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["MESH_FORMATS", "atomic_path", "write_text_atomic"]
+__all__ = ["MESH_FORMATS", "atomic_path", "write_text_atomic", "check_outputs_spare_inputs"]
 
 #: The formats of cuboid meshes (:func:`cuboidlib.export.write_cuboid_mesh`, ``cuboidlib fit --mesh-format``).
 MESH_FORMATS = ("glb", "obj", "ply")
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it; set straight back
+    os.umask(mask)
+    return mask
 
 
 @contextmanager
@@ -24,12 +30,17 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         path: the file to write; its folder is created if missing.
 
     Returns:
-        A context manager yielding the temporary Path (same suffix, so writers choose the same format).
+        A context manager yielding the temporary Path (same suffix, so writers choose the same format); the
+        file is made with mode 0666 less the umask, like any file the user makes. Where ``path`` is a symbolic
+        link, the link itself is replaced: its target is never written.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".part{path.suffix}")
-    os.close(fd)
+    try:  # mkstemp makes 0600 files; a result gets the mode of any file the user makes (0666 less the umask)
+        os.fchmod(fd, 0o666 & ~_umask())
+    finally:
+        os.close(fd)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
@@ -51,3 +62,39 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def _real(path: str | os.PathLike) -> str:
+    return os.path.normcase(os.path.realpath(path))
+
+
+def check_outputs_spare_inputs(outputs, inputs, what: str = "output") -> None:
+    """Refuse, before any work, output paths that would write over or remove an input.
+
+    An output conflicts with an input when it is the same file (after symlinks; hard links count too) or lies
+    inside an input folder.
+
+    Args:
+        outputs: the paths a run will write or remove.
+        inputs: the files and folders it reads.
+        what: names the outputs in the message (e.g. "--out").
+
+    Raises:
+        ValueError: naming the output, the input and what to do.
+    """
+    sources = [(Path(i), _real(i)) for i in inputs]
+    for output in outputs:
+        real = _real(output)
+        for given, source in sources:
+            same = real == source
+            if not same and os.path.exists(output) and given.exists():
+                try:
+                    same = os.path.samefile(output, given)
+                except OSError:
+                    same = False
+            if same:
+                raise ValueError(f"{what} {output}: is the input {given}; this run would write over or remove "
+                                 "it. Choose another output (or copy the input elsewhere first)")
+            if given.is_dir() and real.startswith(source.rstrip(os.sep) + os.sep):
+                raise ValueError(f"{what} {output}: lies inside the input folder {given}; results written there "
+                                 "would be read as inputs later. Choose an output outside it")

@@ -4,7 +4,9 @@ The first part keeps one reproduction per reported case; the second runs propert
 (Hypothesis) over the public functions, each checked against a float64 reference where one exists.
 """
 
+import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -448,3 +450,103 @@ def test_a_tiny_shape_is_a_shape_and_identical_points_are_named_as_such():
         normalize(torch.ones(5, 3) * 1e-30)
     with pytest.raises(ValueError, match="all identical to float64 precision.*subtract a nearby origin"):
         normalize(unit * 1e-9 + 1e6)
+
+
+# ------------------------------------------------------------------------------ files: nothing of the user's overwritten
+
+SAMPLE_MESH = Path(__file__).resolve().parents[1] / "data_samples" / "meshes" / "table_0.ply"
+FAST_FIT = ["--steps", "2", "--cuboids", "3", "--points", "128", "--quiet"]
+
+
+def test_no_output_is_an_input_or_lies_inside_one(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["fit", str(SAMPLE_MESH), "--out", str(out), *FAST_FIT]) == 0
+    shape = out / "table_0_segmentation.ply"
+    before = shape.read_bytes()
+    # --overwrite would remove the run's files, the input among them, before reading it
+    assert main(["fit", str(shape), "--out", str(out), "--overwrite", *FAST_FIT]) == 2
+    err = capsys.readouterr().err
+    assert "is the input" in err and "table_0_segmentation.ply" in err
+    assert shape.read_bytes() == before
+    # an output folder inside (or equal to) an input folder
+    data = tmp_path / "data"
+    data.mkdir()
+    io.write_point_cloud(data / "a.ply", make_shape("chair", 0, n_points=256).points)
+    for target in (data, data / "results"):
+        assert main(["fit", str(data), "--out", str(target), *FAST_FIT]) == 2
+        assert "--out" in capsys.readouterr().err
+    assert sorted(p.name for p in data.iterdir()) == ["a.ply"]
+    # view: the page may not be a result (or its points), and must be HTML
+    result = out / "table_0.json"
+    text = result.read_text()
+    for page, message in ((result, "must be an .html file"), (out / "view.htm", None)):
+        code = main(["view", str(result), "--out", str(page), "--quiet"])
+        if message:
+            assert code == 2 and message in capsys.readouterr().err
+    assert result.read_text() == text
+    (out / "table_0_segmentation.html").symlink_to(result)
+    assert main(["view", str(result), "--out", str(out / "table_0_segmentation.html"), "--quiet"]) == 2
+    assert "is the input" in capsys.readouterr().err and result.read_text() == text
+
+
+def test_result_file_names_are_unique_not_only_their_stems(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    chair, table = make_shape("chair", 0, n_points=256), make_shape("table", 0, n_points=256)
+    io.write_point_cloud(data / "a.ply", chair.points)
+    io.write_point_cloud(data / "a_segmentation.ply", table.points)
+    out = tmp_path / "out"
+    assert main(["fit", str(data / "a.ply"), str(data / "a_segmentation.ply"), "--out", str(out),
+                 "--mesh-format", "ply", *FAST_FIT]) == 0
+    results = {p.name: json.loads(p.read_text()) for p in out.glob("*.json") if p.name != "cuboidlib-manifest.json"}
+    assert len(results) == 2
+    points = [r["points_file"] for r in results.values()]
+    assert len(set(points)) == 2
+    for r in results.values():  # every result's points are its own shape's
+        mine = io.read_point_cloud(out / r["points_file"]).points
+        source = io.read_point_cloud(data / r["source"]).points
+        nearest = np.linalg.norm(mine[:, None] - source[None], axis=-1).min(axis=1)
+        assert nearest.max() < 1e-4, r["source"]
+    written = json.loads((out / "cuboidlib-manifest.json").read_text())["files"]
+    assert len(written) == len(set(written)) == 2 * 3 + 1  # json, ply mesh, segmentation per shape; summary
+
+
+def test_a_new_training_run_never_overwrites_files_or_writes_through_links(tmp_path):
+    from cuboidlib.train import Trainer, course_config
+
+    config = course_config("chair", n_shapes=8, n_points=64, batch_size=4, max_steps=1, max_minutes=None)
+    outside = tmp_path / "outside.csv"
+    outside.write_text("precious")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text('{"mine": true}')
+    (run / "log.csv").symlink_to(outside)
+    with pytest.raises(FileExistsError, match=r"config.json, log.csv .*symbolic link"):
+        Trainer(config, run, quiet=True)
+    assert (run / "config.json").read_text() == '{"mine": true}' and outside.read_text() == "precious"
+    (run / "config.json").unlink()
+    with pytest.raises(FileExistsError, match="log.csv"):
+        Trainer(config, run, quiet=True)
+    (run / "log.csv").unlink()
+    trainer = Trainer(config, run, quiet=True)
+    (run / "log.csv").unlink()
+    (run / "log.csv").symlink_to(outside)  # a link put there while the run goes
+    with pytest.raises(OSError, match="not a symbolic link"):
+        trainer.log.write(0, 0, "train", {}, 0.0)
+    assert outside.read_text() == "precious"
+    again = tmp_path / "again"
+    Trainer(config, again, quiet=True)  # the same run started again before its first checkpoint is accepted
+    Trainer(config, again, quiet=True)
+    with pytest.raises(FileExistsError, match="config.json"):
+        Trainer(config.replace(seed=config.seed + 1), again, quiet=True)
+
+
+def test_written_files_get_the_users_umask(tmp_path):
+    from cuboidlib.files import write_text_atomic
+
+    old = os.umask(0o027)
+    try:
+        path = write_text_atomic(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert (path.stat().st_mode & 0o777) == 0o640
