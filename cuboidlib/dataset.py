@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Callable, Sequence
@@ -21,6 +22,7 @@ import torch
 
 from ._checks import check_int
 from .config import ConfigDict, derive_seed
+from .files import MANIFEST, result_files_in
 from .io import (
     MESH_SUFFIXES,
     POINT_CLOUD_SUFFIXES,
@@ -333,9 +335,16 @@ def _data_files(folder: Path) -> list[Path]:
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such data folder")
     suffixes = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
-    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    found = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    results = {parent: result_files_in(parent) for parent in {p.parent for p in found}}
+    files = [p for p in found if p.name not in results[p.parent]]
+    if len(files) < len(found):  # cuboidlib's own outputs (meshes of cuboids, segmented points) are not shapes
+        warnings.warn(f"{folder}: {len(found) - len(files)} file(s) below it are cuboidlib results (listed in a "
+                      f"{MANIFEST} or beside a result JSON, e.g. {[p for p in found if p not in files][0]}); they are "
+                      "not read as shapes", stacklevel=4)
     if not files:
-        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})")
+        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})"
+                         + (" other than cuboidlib results" if found else ""))
     return files
 
 

@@ -59,7 +59,7 @@ import numpy as np
 import torch
 import trimesh
 
-from .files import MESH_FORMATS, atomic_path, check_outputs_spare_inputs, write_text_atomic
+from .files import MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, check_outputs_spare_inputs, write_text_atomic
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
 from .io import read_point_cloud
@@ -89,7 +89,7 @@ __all__ = [
     "prepare_output_folder",
 ]
 
-JSON_FORMAT = "cuboidlib-cuboids"
+JSON_FORMAT = RESULT_FORMAT
 JSON_VERSION = 1
 COORDINATES = ("original", "normalized")
 # MESH_FORMATS, part of this module's names, is defined in cuboidlib.files, which the command line reads
@@ -631,7 +631,7 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
 # Output folders: refuse to mix runs, and a manifest of what each run wrote
 # ----------------------------------------------------------------------------------------------
 
-MANIFEST = "cuboidlib-manifest.json"
+# MANIFEST (cuboidlib.files): the file name of a results folder's manifest.
 
 
 def read_manifest(folder: str | os.PathLike) -> dict | None:

@@ -4,13 +4,21 @@ in which mesh formats. It imports no torch, so the command line uses it while it
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["MESH_FORMATS", "atomic_path", "write_text_atomic", "check_outputs_spare_inputs"]
+__all__ = ["MESH_FORMATS", "MANIFEST", "RESULT_FORMAT", "atomic_path", "write_text_atomic",
+           "check_outputs_spare_inputs", "result_files_in"]
+
+#: The file in which a run records the files it wrote in its output folder (:func:`cuboidlib.export.write_manifest`).
+MANIFEST = "cuboidlib-manifest.json"
+
+#: The ``"format"`` of a result JSON (:func:`cuboidlib.export.write_cuboids_json`).
+RESULT_FORMAT = "cuboidlib-cuboids"
 
 #: The formats of cuboid meshes (:func:`cuboidlib.export.write_cuboid_mesh`, ``cuboidlib fit --mesh-format``).
 MESH_FORMATS = ("glb", "obj", "ply")
@@ -98,3 +106,38 @@ def check_outputs_spare_inputs(outputs, inputs, what: str = "output") -> None:
             if given.is_dir() and real.startswith(source.rstrip(os.sep) + os.sep):
                 raise ValueError(f"{what} {output}: lies inside the input folder {given}; results written there "
                                  "would be read as inputs later. Choose an output outside it")
+
+
+def result_files_in(folder: str | os.PathLike) -> set[str]:
+    """The names of the files in ``folder`` that cuboidlib wrote as results, so that no reader takes them for data.
+
+    They are the files a manifest there lists, and beside every result JSON (``"format"`` :data:`RESULT_FORMAT`)
+    of stem S: S.json, its meshes S.glb, S.obj, S.mtl and its points file (S_segmentation.ply). A mesh S.ply
+    counts only when a manifest lists it, since the input of the result may have that name.
+
+    Args:
+        folder: a folder.
+
+    Returns:
+        File names (not paths); empty when there are none.
+    """
+    folder = Path(folder)
+    names: set[str] = set()
+    try:
+        doc = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+        listed = doc.get("files") if isinstance(doc, dict) else None
+        names.update(f for f in listed or [] if isinstance(f, str))
+        names.add(MANIFEST)
+    except (OSError, ValueError):
+        pass
+    for result in folder.glob("*.json"):
+        try:
+            doc = json.loads(result.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(doc, dict) and doc.get("format") == RESULT_FORMAT:
+            stem = result.stem
+            names.update([result.name, *(f"{stem}.{x}" for x in ("glb", "obj", "mtl")), f"{stem}_segmentation.ply"])
+            if isinstance(doc.get("points_file"), str):
+                names.add(doc["points_file"])
+    return names

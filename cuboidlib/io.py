@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import sys
 import warnings
 from dataclasses import dataclass
@@ -492,7 +493,26 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
 # --------------------------------------------------------------------------------------- meshes
 
 
+# A face line of an OBJ file with a vertex index 0 (OBJ counts from 1; trimesh would silently shift such a file).
+_OBJ_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r\n]|$)")
+
+
+def _check_obj_indices(path: Path) -> None:
+    """Refuse an OBJ file whose faces use vertex index 0 (a 0-based file): OBJ indices start at 1."""
+    data = path.read_bytes()
+    found = _OBJ_ZERO_INDEX.search(data)
+    if found:
+        line = data.count(b"\n", 0, found.start()) + 1
+        end = data.find(b"\n", found.start())
+        text = data[found.start():end if end >= 0 else len(data)].decode(errors="replace").strip()
+        raise ValueError(f"{path}: line {line} ({text!r}) refers to vertex "
+                         "0, but OBJ vertex indices start at 1; the file seems to count from 0. Add 1 to every face "
+                         "index (or export it again) so that no vertex is dropped or shifted")
+
+
 def _load_mesh(path: Path) -> trimesh.Trimesh:
+    if path.suffix.lower() == ".obj":
+        _check_obj_indices(path)
     try:
         loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # noqa: BLE001 - re-raised with the file name

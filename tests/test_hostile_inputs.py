@@ -550,3 +550,44 @@ def test_written_files_get_the_users_umask(tmp_path):
     finally:
         os.umask(old)
     assert (path.stat().st_mode & 0o777) == 0o640
+
+
+def test_obj_faces_counting_from_zero_are_refused_not_shifted(tmp_path):
+    vertices = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    (tmp_path / "zero.obj").write_text(vertices + "f 0 1 2\nf 0 2 3\nf 0 3 1\nf 1 3 2\n")
+    with pytest.raises(ValueError, match=r"zero.obj: line 5 \('f 0 1 2'\) refers to vertex 0.*start at 1"):
+        io.load_mesh_as_point_cloud(tmp_path / "zero.obj", 10)
+    (tmp_path / "slashes.obj").write_text(vertices + "vt 0 0\nf 1/1 2/1 3/1\nf 1//1 3//1 4//1\nf 10 2 4\n")
+    with pytest.raises(ValueError, match="unreadable mesh"):  # out of range, named by the reader
+        io.load_mesh_as_point_cloud(tmp_path / "slashes.obj", 10)
+    (tmp_path / "good.obj").write_text(vertices + "f 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
+    assert len(io.load_mesh_as_point_cloud(tmp_path / "good.obj", 10)) == 10
+
+
+@pytest.mark.parametrize("with_manifest", [True, False])
+def test_a_data_folder_never_reads_cuboidlibs_own_results_as_shapes(tmp_path, with_manifest):
+    import shutil
+    import warnings
+
+    from cuboidlib.dataset import DataConfig, load_shapes
+
+    data = tmp_path / "data"
+    data.mkdir()
+    for k in range(3):
+        shape = make_shape("chair", k, n_points=256)
+        io.write_point_cloud(data / f"s{k}.ply", shape.points, shape.normals, shape.labels)
+    out = tmp_path / "out"
+    assert main(["fit", str(data), "--out", str(out), "--mesh-format", "glb,obj", *FAST_FIT]) == 0
+    for f in out.iterdir():
+        if with_manifest or f.name != "cuboidlib-manifest.json":
+            shutil.copy(f, data / f.name)
+    with pytest.warns(UserWarning, match=r"file\(s\) below it are cuboidlib results"):
+        shapes = load_shapes(DataConfig(data_dir=str(data), n_points=128))
+    assert len(shapes) == 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        (data / "cuboidlib-manifest.json").unlink(missing_ok=True)
+        for f in data.iterdir():
+            if not f.name.startswith("s") or "_" in f.name or f.suffix != ".ply":
+                f.unlink()
+        assert len(load_shapes(DataConfig(data_dir=str(data), n_points=128))) == 3
