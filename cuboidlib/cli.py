@@ -779,13 +779,21 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict], start: 
     from .abstraction import Abstraction  # imports torch: start-up time
 
     cuboids = decoded.cuboids.to(device="cpu")
-    written = []
-    for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False, delay=_BAR_DELAY):
-        one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
-                            cuboids.exists[k:k + 1], validate=False)
-        result = Abstraction(one, method=methods[k])
-        written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
-        _record(args, written, complete=k == len(stems) - 1)  # an interrupted run says so, with what it wrote
+    written, recorded = [], time.perf_counter()
+    try:
+        for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False,
+                      delay=_BAR_DELAY):
+            one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
+                                cuboids.exists[k:k + 1], validate=False)
+            result = Abstraction(one, method=methods[k])
+            written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
+            if time.perf_counter() - recorded > 2.0:  # now and then, not after every shape (that grows as N^2)
+                _record(args, written, complete=False)
+                recorded = time.perf_counter()
+    except BaseException:
+        _record(args, written, complete=False)  # an interrupted run says so, with what it wrote
+        raise
+    _record(args, written)
     if not args.quiet:
         print(f"{summary()} | {time.perf_counter() - start:.1f} s")
         print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
@@ -812,8 +820,13 @@ def _cmd_generate(args) -> int:
 
     from .applications import generate_shapes  # imports torch: start-up time
 
+    from ._checks import MAX_SHAPES, check_size  # imports torch: start-up time
     from .results import result_files  # imports torch: start-up time
 
+    try:
+        check_size(args.count, "--count", MAX_SHAPES, "shapes")
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
     start = time.perf_counter()
     stems = _stems("generated", args.count)
     _check_out_dir(args, [m for m in [args.model] if Path(m).is_file()], [n for s in stems for n in result_files(s, args.mesh_format, False).values()])

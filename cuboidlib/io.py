@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ._checks import MAX_SHAPE_POINTS, check_size
 from .files import atomic_path
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
@@ -550,7 +551,7 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
 
     Args:
         path: any mesh trimesh reads (OBJ, PLY with faces, OFF, STL, GLB/GLTF).
-        n_points: number of points N.
+        n_points: number of points N, from 1 to ``cuboidlib._checks.MAX_SHAPE_POINTS``.
         seed: seed of the sampling.
         orient: ``"auto"``: for a watertight mesh with consistent winding, trust the winding (flipped
             as a whole if the enclosed volume is negative), otherwise orient the sampled normals
@@ -564,8 +565,7 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
         :func:`write_shape_mesh` writes), otherwise None.
     """
     path = _check_file(path)
-    if n_points < 1:
-        raise ValueError(f"n_points must be a positive integer, got {n_points}")
+    n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     if orient not in ("auto", "winding", "visibility"):
         raise ValueError(f"orient must be 'auto', 'winding' or 'visibility', got {orient!r}")
     mesh = _load_mesh(path)
@@ -630,7 +630,8 @@ def load_point_cloud(
         path: a point cloud (``.ply`` without faces, ``.txt``, ``.pts``, ``.xyz``, ``.npy``) or a mesh
             (``.obj``, ``.off``, ``.stl``, ``.glb``, ``.gltf``, ``.ply`` with faces).
         n_points: for meshes, the number of points to sample (required); for point clouds, a random
-            subset of this size is kept (an error if the file has fewer points).
+            subset of this size is kept (an error if the file has fewer points). At most
+            ``cuboidlib._checks.MAX_SHAPE_POINTS``, checked before the file is read.
         seed: seed of the sampling / subsampling.
         normalize_shape: apply the course normalisation (bounding-box centre to the origin, diagonal
             1) and record ``(center, scale)``.
@@ -650,6 +651,8 @@ def load_point_cloud(
     path = _check_file(path)
     if normals not in ("auto", "estimate", "file"):
         raise ValueError(f"normals must be 'auto', 'estimate' or 'file', got {normals!r}")
+    if n_points is not None:
+        n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     is_mesh = is_mesh_file(path)
     if is_mesh:
         if n_points is None:

@@ -591,3 +591,38 @@ def test_a_data_folder_never_reads_cuboidlibs_own_results_as_shapes(tmp_path, wi
             if not f.name.startswith("s") or "_" in f.name or f.suffix != ".ply":
                 f.unlink()
         assert len(load_shapes(DataConfig(data_dir=str(data), n_points=128))) == 3
+
+
+# ------------------------------------------------------------------------------ sizes: one limit, checked first
+
+
+def test_every_path_that_samples_or_allocates_checks_one_size_limit_first(tmp_path, capsys):
+    from cuboidlib._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES
+    from cuboidlib.dataset import DataConfig
+    from cuboidlib.train import TrainConfig
+
+    too_many = f"above the limit of {MAX_SHAPE_POINTS:,}"
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=too_many):
+        io.load_mesh_as_point_cloud(SAMPLE_MESH, 10**9)
+    with pytest.raises(ValueError, match=too_many):
+        io.load_point_cloud(SAMPLE_MESH, 3_000_000)
+    with pytest.raises(ValueError, match="positive number of points, got -5"):
+        io.load_mesh_as_point_cloud(SAMPLE_MESH, -5)
+    with pytest.raises(ValueError, match=too_many):
+        make_shape("chair", 0, n_points=10**9)
+    with pytest.raises(ValueError, match=f"above the limit of {MAX_SHAPES:,}"):
+        make_collection("chair", 10**9, 16, use_cache=False)
+    with pytest.raises(ValueError, match=f"above the limit of {MAX_COLLECTION_POINTS:,}"):
+        make_collection("chair", MAX_SHAPES, MAX_SHAPE_POINTS, use_cache=False)
+    for field, value in (("n_points", 10**9), ("n_shapes", 10**9)):
+        with pytest.raises(ValueError, match=f"TrainConfig.{field} is 1,000,000,000"):
+            TrainConfig(**{field: value})
+    with pytest.raises(ValueError, match=r"split_fractions\[1\] must be a finite number"):
+        DataConfig(split_fractions=(0.7, "0.1", 0.2))
+    TrainConfig(n_shapes=2000, n_points=4096)  # the paper's scale
+    assert main(["fit", str(SAMPLE_MESH), "--points", "1000000000", "--out", str(tmp_path / "o")]) == 2
+    assert too_many in capsys.readouterr().err
+    assert main(["generate", "--model", "chair", "--count", "100000000", "--out", str(tmp_path / "g")]) == 2
+    assert f"above the limit of {MAX_SHAPES:,}" in capsys.readouterr().err
+    assert time.perf_counter() - start < 30  # refused before any work
