@@ -13,6 +13,7 @@ import csv
 import glob
 import io
 import json
+import os
 import shlex
 import sys
 import tempfile
@@ -21,7 +22,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .files import MESH_FORMATS, check_outputs_spare_inputs, write_text_atomic
+from .files import MESH_FORMATS, check_outputs_spare_inputs, output_lock, write_text_atomic
 
 
 class UserError(Exception):
@@ -932,6 +933,24 @@ def _missing_package(exc: ImportError) -> int:
     return 1
 
 
+def _resume_note(args) -> str:
+    """For an interrupted train: the step from which --resume continues (that of OUT/last.pt), or that none can."""
+    if args.command != "train":
+        return ""
+    last = Path(args.out) / "last.pt"
+    try:
+        from .checkpoint import load_checkpoint  # imports torch: start-up time (already imported by train)
+
+        step = load_checkpoint(last)["step"]
+    except (OSError, ValueError, KeyError, ImportError):
+        return f"; no checkpoint was written in {args.out} yet, so --resume has nothing to continue"
+    return f"; --resume continues from step {step} ({last}), the last checkpoint"
+
+
+#: The commands that write into an --out folder, which they lock while they run.
+_WRITES_INTO_OUT = ("train", "fit", "abstract", "generate", "interpolate")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``cuboidlib`` command line.
 
@@ -949,9 +968,20 @@ def main(argv: list[str] | None = None) -> int:
         return _missing_package(exc)
     args.argv = argv
     try:
+        if args.command in _WRITES_INTO_OUT and os.environ.get("RANK", "0") == "0" and not getattr(
+                args, "print_config", False):
+            try:  # one run at a time writes into a folder (under torchrun, rank 0 holds it)
+                lock = output_lock(args.out)
+                lock.__enter__()
+            except ValueError as exc:
+                raise UserError(f"--out {exc}") from exc
+            try:
+                return int(args.func(args) or 0)
+            finally:
+                lock.__exit__(None, None, None)
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"cuboidlib {args.command}: interrupted", file=sys.stderr)
+        print(f"cuboidlib {args.command}: interrupted{_resume_note(args)}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - every error becomes one readable line unless --traceback
         if args.traceback:

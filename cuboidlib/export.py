@@ -59,7 +59,7 @@ import numpy as np
 import torch
 import trimesh
 
-from .files import MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, check_outputs_spare_inputs, write_text_atomic
+from .files import LOCK_FILE, MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, check_outputs_spare_inputs, write_text_atomic
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
 from .io import read_point_cloud
@@ -690,7 +690,7 @@ def prepare_output_folder(folder: str | os.PathLike, overwrite: bool = False) ->
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{folder}: exists and is not a folder")
-    present = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    present = sorted(p.name for p in folder.iterdir() if p.name != LOCK_FILE) if folder.is_dir() else []
     if not present:
         folder.mkdir(parents=True, exist_ok=True)
         return folder

@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["MESH_FORMATS", "MANIFEST", "RESULT_FORMAT", "atomic_path", "write_text_atomic",
-           "check_outputs_spare_inputs", "result_files_in"]
+           "check_outputs_spare_inputs", "result_files_in", "LOCK_FILE", "output_lock"]
 
 #: The file in which a run records the files it wrote in its output folder (:func:`cuboidlib.export.write_manifest`).
 MANIFEST = "cuboidlib-manifest.json"
@@ -141,3 +141,67 @@ def result_files_in(folder: str | os.PathLike) -> set[str]:
             if isinstance(doc.get("points_file"), str):
                 names.add(doc["points_file"])
     return names
+
+
+#: The file that marks an output folder as in use by a running command (:func:`output_lock`).
+LOCK_FILE = ".cuboidlib.lock"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+@contextmanager
+def output_lock(folder: str | os.PathLike) -> Iterator[Path]:
+    """Hold ``folder`` for one run: a second run into it, while this one writes, is refused.
+
+    The lock is the file :data:`LOCK_FILE` in ``folder`` holding the process id, made exclusively and removed when
+    the block ends; one left by a process that no longer runs is taken over.
+
+    Args:
+        folder: the output folder; created if missing (and removed again if the run left it empty).
+
+    Returns:
+        A context manager yielding the folder as a Path.
+
+    Raises:
+        ValueError: another running process holds the folder.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder}: exists and is not a folder")
+    made = not folder.exists()
+    lock = folder / LOCK_FILE
+    for _ in range(2):
+        try:  # before any work: a folder that cannot be written is reported now, not after the run
+            folder.mkdir(parents=True, exist_ok=True)
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except PermissionError as exc:
+            raise ValueError(f"{folder}: cannot write there ({exc.strerror}); choose a folder you can write to") from exc
+        except FileExistsError:
+            try:
+                pid = int(lock.read_text().strip() or 0)
+            except (OSError, ValueError):
+                pid = 0
+            if pid and pid != os.getpid() and _alive(pid):
+                raise ValueError(f"{folder}: another cuboidlib run (process {pid}) is writing there; wait for it "
+                                 f"to finish or choose another folder (if no run is going, remove {lock})") from None
+            lock.unlink(missing_ok=True)  # left by a run that ended without removing it
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{os.getpid()}\n")
+        break
+    else:
+        raise ValueError(f"{folder}: could not take the lock {lock}; another run may be starting there")
+    try:
+        yield folder
+    finally:
+        lock.unlink(missing_ok=True)
+        if made and not any(folder.iterdir()):  # a run that wrote nothing leaves no folder behind
+            folder.rmdir()

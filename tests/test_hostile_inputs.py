@@ -626,3 +626,74 @@ def test_every_path_that_samples_or_allocates_checks_one_size_limit_first(tmp_pa
     assert main(["generate", "--model", "chair", "--count", "100000000", "--out", str(tmp_path / "g")]) == 2
     assert f"above the limit of {MAX_SHAPES:,}" in capsys.readouterr().err
     assert time.perf_counter() - start < 30  # refused before any work
+
+
+def test_an_output_folder_is_locked_while_a_run_writes_into_it(tmp_path, capsys):
+    from cuboidlib.files import LOCK_FILE
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / LOCK_FILE).write_text(f"{os.getppid()}\n")  # a running process holds it
+    assert main(["fit", str(SAMPLE_MESH), "--out", str(out), *FAST_FIT]) == 2
+    err = capsys.readouterr().err
+    assert f"another cuboidlib run (process {os.getppid()}) is writing there" in err
+    assert sorted(p.name for p in out.iterdir()) == [LOCK_FILE]
+    (out / LOCK_FILE).write_text("999999999\n")  # left by a run that has ended
+    assert main(["fit", str(SAMPLE_MESH), "--out", str(out), *FAST_FIT]) == 0
+    assert not (out / LOCK_FILE).exists() and (out / "table_0.json").is_file()
+    assert main(["fit", str(tmp_path / "missing.ply"), "--out", str(tmp_path / "new"), *FAST_FIT]) == 2
+    assert not (tmp_path / "new").exists()  # a run that wrote nothing leaves no folder
+
+
+def _glb(doc: dict, binary: bytes) -> bytes:
+    import struct
+
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", len(binary), b"BIN\x00") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def test_damaged_glb_files_and_checkpoints_are_named_clearly(tmp_path):
+    import trimesh as tm
+
+    good = tm.creation.box().export(file_type="glb")
+    length = int.from_bytes(good[12:16], "little")
+    doc, binary = json.loads(good[20:20 + length]), good[20 + length + 8:]
+    doc["buffers"][0]["byteLength"] = 2**40
+    (tmp_path / "huge.glb").write_bytes(_glb(doc, binary))
+    with pytest.raises(ValueError, match=r"huge.glb: GLB buffer 0 claims 1099511627776 bytes"):
+        io.load_mesh_as_point_cloud(tmp_path / "huge.glb", 10)
+    (tmp_path / "empty.glb").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.glb: an empty or truncated GLB"):
+        io.load_mesh_as_point_cloud(tmp_path / "empty.glb", 10)
+    (tmp_path / "cut.glb").write_bytes(good[:-7])
+    with pytest.raises(ValueError, match="cut.glb: the GLB header declares"):
+        io.load_mesh_as_point_cloud(tmp_path / "cut.glb", 10)
+    state = torch.load(CHECKPOINTS / "chair.pt", weights_only=True)
+    bad = dict(state, format_version="2")
+    torch.save(bad, tmp_path / "v.pt")
+    with pytest.raises(ValueError, match="format_version must be a whole number >= 1, got '2'"):
+        load_checkpoint(tmp_path / "v.pt")
+    weights = dict(state["model"])
+    name = next(k for k, v in weights.items() if v.is_floating_point())
+    weights[name] = weights[name].clone().fill_(float("nan"))
+    torch.save(dict(state, model=weights), tmp_path / "nan.pt")
+    with pytest.raises(ValueError, match=rf"nan.pt: the checkpoint's weights hold NaN.*{name}.*not your input"):
+        load_model(tmp_path / "nan.pt")
+
+
+def test_an_interrupted_training_says_where_resume_continues(tmp_path, monkeypatch, capsys):
+    import cuboidlib.cli
+    from cuboidlib.checkpoint import save_checkpoint
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cuboidlib.cli, "_cmd_train", interrupted)
+    out = tmp_path / "run"
+    assert main(["train", "--out", str(out)]) == 130
+    assert "no checkpoint was written" in capsys.readouterr().err
+    save_checkpoint(out / "last.pt", {"model": {}}, {}, step=7)
+    assert main(["train", "--out", str(out)]) == 130
+    assert "--resume continues from step 7" in capsys.readouterr().err
