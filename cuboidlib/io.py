@@ -517,31 +517,31 @@ def _check_glb(path: Path) -> None:
 
     data = path.read_bytes()
     if len(data) < 20:
-        raise ValueError(f"{path}: an empty or truncated GLB file ({len(data)} bytes; a GLB has a 12-byte header "
+        raise ValueError(f"{path}: unreadable mesh: an empty or truncated GLB file ({len(data)} bytes; a GLB has a 12-byte header "
                          "and at least one chunk)")
     magic, version, length = struct.unpack_from("<4sII", data)
     if magic != b"glTF":
-        raise ValueError(f"{path}: not a GLB file (it does not start with 'glTF')")
+        raise ValueError(f"{path}: unreadable mesh: not a GLB file (it does not start with 'glTF')")
     if length != len(data):
-        raise ValueError(f"{path}: the GLB header declares {length:,} bytes but the file has {len(data):,}; "
+        raise ValueError(f"{path}: unreadable mesh: the GLB header declares {length:,} bytes but the file has {len(data):,}; "
                          "it is truncated or damaged")
     offset, chunks = 12, {}
     while offset + 8 <= length:
         size, kind = struct.unpack_from("<I4s", data, offset)
         if offset + 8 + size > length:
-            raise ValueError(f"{path}: a GLB chunk declares {size:,} bytes, beyond the end of the file "
+            raise ValueError(f"{path}: unreadable mesh: a GLB chunk declares {size:,} bytes, beyond the end of the file "
                              f"({length:,} bytes); it is truncated or damaged")
         chunks.setdefault(kind, data[offset + 8:offset + 8 + size])
         offset += 8 + size
     try:
         doc = json.loads(chunks.get(b"JSON", b"").decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: the GLB's JSON chunk is missing or unreadable ({exc})") from exc
+        raise ValueError(f"{path}: unreadable mesh: the GLB's JSON chunk is missing or unreadable ({exc})") from exc
     binary = len(chunks.get(b"BIN\x00", b""))
     for k, buffer in enumerate(doc.get("buffers", []) if isinstance(doc, dict) else []):
         claimed = buffer.get("byteLength") if isinstance(buffer, dict) else None
         if isinstance(buffer, dict) and "uri" not in buffer and (not isinstance(claimed, int) or claimed > binary):
-            raise ValueError(f"{path}: GLB buffer {k} claims {claimed!r} bytes but the file's binary chunk holds "
+            raise ValueError(f"{path}: unreadable mesh: GLB buffer {k} claims {claimed!r} bytes but the file's binary chunk holds "
                              f"{binary:,}; it is damaged")
 
 

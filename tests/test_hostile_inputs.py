@@ -662,13 +662,13 @@ def test_damaged_glb_files_and_checkpoints_are_named_clearly(tmp_path):
     doc, binary = json.loads(good[20:20 + length]), good[20 + length + 8:]
     doc["buffers"][0]["byteLength"] = 2**40
     (tmp_path / "huge.glb").write_bytes(_glb(doc, binary))
-    with pytest.raises(ValueError, match=r"huge.glb: GLB buffer 0 claims 1099511627776 bytes"):
+    with pytest.raises(ValueError, match=r"huge.glb: unreadable mesh: GLB buffer 0 claims 1099511627776 bytes"):
         io.load_mesh_as_point_cloud(tmp_path / "huge.glb", 10)
     (tmp_path / "empty.glb").write_bytes(b"")
-    with pytest.raises(ValueError, match="empty.glb: an empty or truncated GLB"):
+    with pytest.raises(ValueError, match="empty.glb: unreadable mesh: an empty or truncated GLB"):
         io.load_mesh_as_point_cloud(tmp_path / "empty.glb", 10)
     (tmp_path / "cut.glb").write_bytes(good[:-7])
-    with pytest.raises(ValueError, match="cut.glb: the GLB header declares"):
+    with pytest.raises(ValueError, match="cut.glb: unreadable mesh: the GLB header declares"):
         io.load_mesh_as_point_cloud(tmp_path / "cut.glb", 10)
     state = torch.load(CHECKPOINTS / "chair.pt", weights_only=True)
     bad = dict(state, format_version="2")
