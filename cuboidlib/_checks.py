@@ -29,9 +29,9 @@ __all__ = [
 # check_size before any work, so that a size too large is a clear error, not an allocator failure or an unbounded
 # run. They admit the paper's scale (4,096 points per shape, 2,000 shapes) with a wide margin.
 
-#: Points per shape: sampled on a mesh, kept of a point cloud, or a config's n_points. At the limit, sampling an
-#: open mesh (normals oriented by visibility) takes about half a minute on one core.
-MAX_SHAPE_POINTS = 50_000
+#: Points per shape: sampled on a mesh, kept of a point cloud, or a config's n_points; the same bound as normal
+#: estimation (cuboidlib.normals.MAX_POINTS). Sampling an open mesh (normals oriented by visibility) costs most.
+MAX_SHAPE_POINTS = 20_000
 #: Shapes in one collection: a config's n_shapes, ``cuboidlib generate --count``.
 MAX_SHAPES = 20_000
 #: Points in one collection in all (n_shapes x n_points): 2^24, 4,096 shapes of 4,096 points, about 0.5 GB of
