@@ -327,6 +327,10 @@ def _cmd_evaluate(args) -> int:
     if args.data_dir is not None:
         _check_input_folder(args.data_dir)
         config = config.replace(data_dir=args.data_dir, category=args.category or config.category)
+    elif config.data_dir is not None:  # a folder written in a file is never read unasked
+        raise UserError(f"{args.checkpoint}: was trained on the data folder {config.data_dir}; to score it there, "
+                        f"name the folder: --data-dir {shlex.quote(config.data_dir)} (a checkpoint never chooses "
+                        "which folder is read)")
     shapes = load_shapes(config) if args.split == "all" else load_splits(config)[args.split]
     conventions = [ChamferConvention(norm, args.chamfer_directions, args.chamfer_scale, args.samples)
                    for norm in (args.chamfer_norm or ["squared_l2"])]
@@ -339,7 +343,7 @@ def _cmd_evaluate(args) -> int:
     if args.baseline:
         boxes = args.baseline_boxes or max(1, round(results[0]["n_ac"]))
         results.append(evaluate_baseline(shapes, boxes, **options))
-    data = f", {config.data_dir}" if args.data_dir else ""
+    data = f", data folder {config.data_dir}" if config.data_dir else ""
     title = (f"{args.checkpoint}: {config.category}{data}, {args.split} split ({len(shapes)} shapes, "
              f"{config.n_points} points each)")
     print(format_table(results, title))

@@ -697,3 +697,13 @@ def test_an_interrupted_training_says_where_resume_continues(tmp_path, monkeypat
     save_checkpoint(out / "last.pt", {"model": {}}, {}, step=7)
     assert main(["train", "--out", str(out)]) == 130
     assert "--resume continues from step 7" in capsys.readouterr().err
+
+
+def test_a_checkpoint_never_chooses_a_folder_to_read(tmp_path, capsys):
+    state = torch.load(CHECKPOINTS / "chair.pt", weights_only=True)
+    torch.save(dict(state, config={**state["config"], "data_dir": "/usr"}), tmp_path / "usr.pt")
+    start = time.perf_counter()
+    assert main(["evaluate", str(tmp_path / "usr.pt")]) == 2
+    err = capsys.readouterr().err
+    assert "trained on the data folder /usr" in err and "--data-dir /usr" in err
+    assert time.perf_counter() - start < 20  # refused, not scanned
