@@ -610,26 +610,32 @@ def _run_shapes(args, what: str, prepare) -> int:
         _report(args, result, written, time.perf_counter() - start)
         _record(args, written)
         return 0
-    rows, files = [], []
-    for path, stem in tqdm(zip(shapes, stems), total=len(shapes), desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
-        start = time.perf_counter()
-        try:
-            _check_shape_file(path)
-            result = one(path, False)
-            written = _save(args, result, stem, None)
-        except (UserError, ValueError, OSError, FloatingPointError) as exc:
-            message = " ".join(str(exc).split()) or type(exc).__name__
-            message = message if path in message else f"{path}: {message}"
-            if not args.quiet:
-                tqdm.write(f"cuboidlib {args.command}: skipped {message}", file=sys.stderr)
-            rows.append({"shape": path, "status": "failed", "error": message,
-                         "seconds": f"{time.perf_counter() - start:.2f}"})
-            continue
-        files += written
-        rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
-                     "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
-                     "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
-        _record(args, files, complete=False)
+    rows, files, recorded = [], [], time.perf_counter()
+    try:
+        for path, stem in tqdm(zip(shapes, stems), total=len(shapes), desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
+            start = time.perf_counter()
+            try:
+                _check_shape_file(path)
+                result = one(path, False)
+                written = _save(args, result, stem, None)
+            except (UserError, ValueError, OSError, FloatingPointError) as exc:
+                message = " ".join(str(exc).split()) or type(exc).__name__
+                message = message if path in message else f"{path}: {message}"
+                if not args.quiet:
+                    tqdm.write(f"cuboidlib {args.command}: skipped {message}", file=sys.stderr)
+                rows.append({"shape": path, "status": "failed", "error": message,
+                             "seconds": f"{time.perf_counter() - start:.2f}"})
+                continue
+            files += written
+            rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
+                         "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
+                         "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
+            if time.perf_counter() - recorded > 2.0:  # now and then, not after every shape (that grows as N^2)
+                _record(args, files, complete=False)
+                recorded = time.perf_counter()
+    except BaseException:
+        _record(args, files, complete=False)  # an interrupted run says so, with what it wrote
+        raise
     files.append(_write_summary(args.out, rows))
     _record(args, files)
     failed = sum(r["status"] == "failed" for r in rows)
