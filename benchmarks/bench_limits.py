@@ -22,7 +22,9 @@ def _text_cloud(folder: Path, n: int, normals: bool) -> Path:
 
     rng = np.random.default_rng(0)
     p = rng.random((n, 3))
-    cols = [p, rng.normal(size=(n, 3))] if normals else [p]
+    unit = rng.normal(size=(n, 3))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)  # unit normals: read as normals (columns 4-6)
+    cols = [p, unit] if normals else [p]
     path = folder / f"cloud_{n}_{'n' if normals else 'p'}.xyz"
     np.savetxt(path, np.concatenate(cols, axis=1), fmt="%.6f")
     return path
@@ -77,6 +79,46 @@ def case_mesh(folder: Path, subdivisions: int):
     return time.perf_counter() - start, f"load_mesh_as_point_cloud(4096 points), mesh of {faces:,} triangles"
 
 
+def case_open_mesh_at_limit(folder: Path, n: int):
+    import trimesh
+
+    from cuboidlib.io import load_mesh_as_point_cloud
+
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    path = folder / "open_sphere.ply"
+    trimesh.Trimesh(sphere.vertices, sphere.faces[:-50], process=False).export(path)  # not watertight
+    start = time.perf_counter()
+    load_mesh_as_point_cloud(path, n)  # normals oriented by visibility: the costly path
+    return time.perf_counter() - start, f"load_mesh_as_point_cloud({n:,} points; the limit MAX_SHAPE_POINTS is 20,000), an open mesh"
+
+
+def case_collection(folder: Path, n_shapes: int):
+    from cuboidlib.shapes import make_collection
+
+    start = time.perf_counter()
+    c = make_collection("chair", n_shapes, 4096, use_cache=False)
+    return (time.perf_counter() - start,
+            f"make_collection, {n_shapes:,} shapes x 4,096 points ({n_shapes * 4096:,} points; "
+            f"MAX_COLLECTION_POINTS = 2^24 is 4,096 shapes), {c.points.nbytes / 1e6:.0f} MB of points")
+
+
+def case_limits_refused(folder: Path, n: int):
+    from cuboidlib.io import load_mesh_as_point_cloud
+    from cuboidlib.train import TrainConfig
+
+    path = _mesh(folder, 3)
+    start = time.perf_counter()
+    for attempt in (lambda: load_mesh_as_point_cloud(path, n), lambda: TrainConfig(n_shapes=n),
+                    lambda: TrainConfig(n_points=n)):
+        try:
+            attempt()
+        except ValueError:
+            pass
+        else:
+            raise AssertionError(f"{n:,} was not refused")
+    return time.perf_counter() - start, f"refusing {n:,} points / shapes above the limits (mesh, config)"
+
+
 def case_chamfer(folder: Path, n: int):
     import torch
 
@@ -114,10 +156,15 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         cases = [(case_read_text, 10_000), (case_load_subsample, 10_000), (case_normals, 2_000),
-                 (case_mesh, 4), (case_chamfer, 10_000)]
+                 (case_mesh, 4), (case_chamfer, 10_000), (case_open_mesh_at_limit, 2_000), (case_collection, 8),
+                 (case_limits_refused, 10**9)]
     else:
+        from cuboidlib._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS
+
         cases = [(case_read_text, 1_000_000), (case_load_subsample, 1_000_000), (case_normals, 5_000),
-                 (case_normals, 20_000), (case_mesh, 8), (case_chamfer, 100_000)]
+                 (case_normals, 20_000), (case_mesh, 8), (case_chamfer, 100_000),
+                 (case_open_mesh_at_limit, MAX_SHAPE_POINTS), (case_collection, MAX_COLLECTION_POINTS // 4096),
+                 (case_limits_refused, 10**9)]
     print(f"{'seconds':>8s}  {'peak MB':>8s}  case (one thread; peak = resident memory of the whole process)")
     for case, size in cases:
         seconds, what, peak_mb = run(case, size)

@@ -18,7 +18,25 @@ __all__ = [
     "check_unit_vectors",
     "check_positive",
     "check_same_leading",
+    "check_int",
+    "check_size",
+    "MAX_SHAPE_POINTS",
+    "MAX_SHAPES",
+    "MAX_COLLECTION_POINTS",
 ]
+
+# The size limits: every path that samples, generates or allocates points or shapes checks its size with
+# check_size before any work, so that a size too large is a clear error, not an allocator failure or an unbounded
+# run. They admit the paper's scale (4,096 points per shape, 2,000 shapes) with a wide margin.
+
+#: Points per shape: sampled on a mesh, kept of a point cloud, or a config's n_points; the same bound as normal
+#: estimation (cuboidlib.normals.MAX_POINTS). Sampling an open mesh (normals oriented by visibility) costs most.
+MAX_SHAPE_POINTS = 20_000
+#: Shapes in one collection: a config's n_shapes, ``cuboidlib generate --count``.
+MAX_SHAPES = 20_000
+#: Points in one collection in all (n_shapes x n_points): 2^24, 4,096 shapes of 4,096 points, about 0.5 GB of
+#: points, normals and labels.
+MAX_COLLECTION_POINTS = 2**24
 
 
 def as_float_tensor(x, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
@@ -148,3 +166,35 @@ def check_int(value, name: str, minimum: int) -> None:
     """An integer (not a bool) of at least ``minimum``, else ValueError naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+_LIMIT_NAMES = {MAX_SHAPE_POINTS: "MAX_SHAPE_POINTS", MAX_SHAPES: "MAX_SHAPES",
+                MAX_COLLECTION_POINTS: "MAX_COLLECTION_POINTS"}
+
+
+def check_size(value, name: str, limit: int, unit: str = "points") -> int:
+    """A size to sample, generate or allocate: a whole number from 1 to ``limit``, checked before any work.
+
+    Args:
+        value: the size (an int, or a whole-valued integer type such as numpy's).
+        name: the argument's name, for the message.
+        limit: the largest accepted, one of the limits above.
+        unit: what is counted, for the message.
+
+    Returns:
+        ``value`` as an int.
+
+    Raises:
+        ValueError: not a whole number, below 1 or above ``limit`` (naming the limit).
+    """
+    if isinstance(value, bool) or not hasattr(value, "__index__"):
+        raise ValueError(f"{name} must be a whole number of {unit} from 1 to {limit:,}, got {value!r}")
+    value = int(value.__index__())
+    if value < 1:
+        raise ValueError(f"{name} must be a positive number of {unit}, got {value}")
+    if value > limit:
+        where = _LIMIT_NAMES.get(limit)
+        raise ValueError(f"{name} is {value:,} {unit}, above the limit of {limit:,}"
+                         + (f" (cuboidlib._checks.{where})" if where else "")
+                         + "; the work and memory grow with it. Use a smaller size")
+    return value

@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from . import __version__
+from .files import atomic_path
 from .model import CuboidAbstractionNet, ModelConfig
 
 __all__ = [
@@ -168,10 +169,8 @@ def save_checkpoint(path: str | os.PathLike, config: dict, model_state: dict, **
     }
     _check_plain(state, "checkpoint")
     check_checkpoint_values(state)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:  # a unique temporary name: two writers never share one
+        torch.save(state, tmp)
     return path
 
 
@@ -203,6 +202,10 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
     missing = [k for k in _REQUIRED if k not in state]
     if missing:
         raise ValueError(f"{path}: checkpoint misses the entries {missing}")
+    version = state["format_version"]
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ValueError(f"{path}: checkpoint format_version must be a whole number >= 1, got {version!r}; "
+                         "the file is damaged or not written by cuboidlib")
     if state["format_version"] > FORMAT_VERSION:
         raise ValueError(
             f"{path}: checkpoint format version {state['format_version']} is newer than this library's "
@@ -242,5 +245,10 @@ def load_model(
         model.load_state_dict(state["model"], strict=True)
     except RuntimeError as exc:
         raise ValueError(f"{path}: the stored weights do not fit the stored model config: {exc}") from exc
+    broken = [name for name, value in state["model"].items()
+              if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all())]
+    if broken:
+        raise ValueError(f"{path}: the checkpoint's weights hold NaN or infinite values ({len(broken)} tensor(s), "
+                         f"first {broken[0]!r}); the checkpoint is damaged (its run diverged), not your input")
     model.eval()
     return model, state

@@ -13,6 +13,7 @@ import csv
 import glob
 import io
 import json
+import os
 import shlex
 import sys
 import tempfile
@@ -21,7 +22,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .files import MESH_FORMATS, write_text_atomic
+from .files import MESH_FORMATS, check_outputs_spare_inputs, output_lock, write_text_atomic
 
 
 class UserError(Exception):
@@ -326,6 +327,10 @@ def _cmd_evaluate(args) -> int:
     if args.data_dir is not None:
         _check_input_folder(args.data_dir)
         config = config.replace(data_dir=args.data_dir, category=args.category or config.category)
+    elif config.data_dir is not None:  # a folder written in a file is never read unasked
+        raise UserError(f"{args.checkpoint}: was trained on the data folder {config.data_dir}; to score it there, "
+                        f"name the folder: --data-dir {shlex.quote(config.data_dir)} (a checkpoint never chooses "
+                        "which folder is read)")
     shapes = load_shapes(config) if args.split == "all" else load_splits(config)[args.split]
     conventions = [ChamferConvention(norm, args.chamfer_directions, args.chamfer_scale, args.samples)
                    for norm in (args.chamfer_norm or ["squared_l2"])]
@@ -338,7 +343,7 @@ def _cmd_evaluate(args) -> int:
     if args.baseline:
         boxes = args.baseline_boxes or max(1, round(results[0]["n_ac"]))
         results.append(evaluate_baseline(shapes, boxes, **options))
-    data = f", {config.data_dir}" if args.data_dir else ""
+    data = f", data folder {config.data_dir}" if config.data_dir else ""
     title = (f"{args.checkpoint}: {config.category}{data}, {args.split} split ({len(shapes)} shapes, "
              f"{config.n_points} points each)")
     print(format_table(results, title))
@@ -450,14 +455,23 @@ def _add_model_options(p) -> None:
     p.add_argument("--device", default="cpu", help="cpu (default), cuda[:i] or auto")
 
 
-def _check_out_dir(args) -> None:
-    """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them)."""
-    from .export import prepare_output_folder  # imports torch: start-up time
+def _check_out_dir(args, inputs=(), names=()) -> None:
+    """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them).
 
+    Before anything is removed, the files this run would write (``names`` in --out, the manifest and the summary)
+    and those --overwrite would remove are checked against ``inputs``: none may be an input or lie inside one.
+    """
+    from .export import MANIFEST, prepare_output_folder, read_manifest  # imports torch: start-up time
+
+    out = Path(args.out)
+    outputs = [out / n for n in (*names, MANIFEST, SUMMARY_FILE)]
+    manifest = read_manifest(out) if args.overwrite and out.is_dir() else None
+    outputs += [out / n for n in (manifest or {}).get("files", [])]
     try:
+        check_outputs_spare_inputs([out, *outputs], [i for i in inputs if Path(i).exists()], "--out")
         prepare_output_folder(args.out, args.overwrite)
     except ValueError as exc:
-        raise UserError(f"--out {exc}") from exc
+        raise UserError(f"--out {exc}" if not str(exc).startswith("--out") else str(exc)) from exc
 
 
 def _record(args, files, complete: bool = True) -> None:
@@ -555,22 +569,34 @@ def _shape_files(items: list[str]) -> list[str]:
     return list(dict.fromkeys(files))  # each file once, in order
 
 
-def _stem_for(path: str, taken: set[str]) -> str:
-    """A result name for ``path``: its file name without suffix, made unique within the run."""
-    stem, k = Path(path).stem, 1
-    while stem in taken:
-        k += 1
-        stem = f"{Path(path).stem}_{k}"
-    taken.add(stem)
-    return stem
+def _result_stems(paths: list[str], formats) -> list[str]:
+    """A result stem for every input: its file name without suffix, changed where one of the files it names
+    (``result_files``: NAME.json, NAME.<format>, NAME_segmentation.ply) is already another input's, so that
+    ``a.ply`` and ``a_segmentation.ply`` never write over each other's files."""
+    from .results import result_files  # imports torch: start-up time
+
+    stems, taken = [], set()
+    for path in paths:
+        base = stem = Path(path).stem
+        k = 1
+        while any(name in taken for name in result_files(stem, formats).values()):
+            k += 1
+            stem = f"{base}_{k}"
+        taken.update(result_files(stem, formats).values())
+        stems.append(stem)
+    return stems
 
 
 def _run_shapes(args, what: str, prepare) -> int:
     """The handler of fit and abstract: expand SHAPE, check --out, then abstract every shape with
     ``one = prepare()`` (``one(path, progress)`` -> a result), write its files and report. With several
     shapes a failure is reported and skipped, and SUMMARY_FILE lists every shape. Exit code 1 if any failed."""
+    from .results import result_files  # imports torch: start-up time
+
     shapes = _shape_files(args.shape)
-    _check_out_dir(args)
+    stems = _result_stems(shapes, args.mesh_format)
+    names = [n for stem in stems for n in result_files(stem, args.mesh_format).values()]
+    _check_out_dir(args, [*args.shape, *shapes], names)
     one = prepare()
 
     from tqdm import tqdm  # start-up time (a quarter of a second)
@@ -580,30 +606,36 @@ def _run_shapes(args, what: str, prepare) -> int:
         with tqdm(total=2, desc=what, disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
             result = one(shapes[0], _bars(args))
             bar.update(1)
-            written = _save(args, result, None, bar)
+            written = _save(args, result, stems[0], bar)
         _report(args, result, written, time.perf_counter() - start)
         _record(args, written)
         return 0
-    rows, files, taken = [], [], set()
-    for path in tqdm(shapes, desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
-        start = time.perf_counter()
-        try:
-            _check_shape_file(path)
-            result = one(path, False)
-            written = _save(args, result, _stem_for(path, taken), None)
-        except (UserError, ValueError, OSError, FloatingPointError) as exc:
-            message = " ".join(str(exc).split()) or type(exc).__name__
-            message = message if path in message else f"{path}: {message}"
-            if not args.quiet:
-                tqdm.write(f"cuboidlib {args.command}: skipped {message}", file=sys.stderr)
-            rows.append({"shape": path, "status": "failed", "error": message,
-                         "seconds": f"{time.perf_counter() - start:.2f}"})
-            continue
-        files += written
-        rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
-                     "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
-                     "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
-        _record(args, files, complete=False)
+    rows, files, recorded = [], [], time.perf_counter()
+    try:
+        for path, stem in tqdm(zip(shapes, stems), total=len(shapes), desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
+            start = time.perf_counter()
+            try:
+                _check_shape_file(path)
+                result = one(path, False)
+                written = _save(args, result, stem, None)
+            except (UserError, ValueError, OSError, FloatingPointError) as exc:
+                message = " ".join(str(exc).split()) or type(exc).__name__
+                message = message if path in message else f"{path}: {message}"
+                if not args.quiet:
+                    tqdm.write(f"cuboidlib {args.command}: skipped {message}", file=sys.stderr)
+                rows.append({"shape": path, "status": "failed", "error": message,
+                             "seconds": f"{time.perf_counter() - start:.2f}"})
+                continue
+            files += written
+            rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
+                         "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
+                         "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
+            if time.perf_counter() - recorded > 2.0:  # now and then, not after every shape (that grows as N^2)
+                _record(args, files, complete=False)
+                recorded = time.perf_counter()
+    except BaseException:
+        _record(args, files, complete=False)  # an interrupted run says so, with what it wrote
+        raise
     files.append(_write_summary(args.out, rows))
     _record(args, files)
     failed = sum(r["status"] == "failed" for r in rows)
@@ -758,13 +790,21 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict], start: 
     from .abstraction import Abstraction  # imports torch: start-up time
 
     cuboids = decoded.cuboids.to(device="cpu")
-    written = []
-    for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False, delay=_BAR_DELAY):
-        one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
-                            cuboids.exists[k:k + 1], validate=False)
-        result = Abstraction(one, method=methods[k])
-        written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
-        _record(args, written, complete=k == len(stems) - 1)  # an interrupted run says so, with what it wrote
+    written, recorded = [], time.perf_counter()
+    try:
+        for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False,
+                      delay=_BAR_DELAY):
+            one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
+                                cuboids.exists[k:k + 1], validate=False)
+            result = Abstraction(one, method=methods[k])
+            written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
+            if time.perf_counter() - recorded > 2.0:  # now and then, not after every shape (that grows as N^2)
+                _record(args, written, complete=False)
+                recorded = time.perf_counter()
+    except BaseException:
+        _record(args, written, complete=False)  # an interrupted run says so, with what it wrote
+        raise
+    _record(args, written)
     if not args.quiet:
         print(f"{summary()} | {time.perf_counter() - start:.1f} s")
         print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
@@ -791,8 +831,16 @@ def _cmd_generate(args) -> int:
 
     from .applications import generate_shapes  # imports torch: start-up time
 
+    from ._checks import MAX_SHAPES, check_size  # imports torch: start-up time
+    from .results import result_files  # imports torch: start-up time
+
+    try:
+        check_size(args.count, "--count", MAX_SHAPES, "shapes")
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
     start = time.perf_counter()
-    _check_out_dir(args)
+    stems = _stems("generated", args.count)
+    _check_out_dir(args, [m for m in [args.model] if Path(m).is_file()], [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
     model, _, path = _load_model(args.model, args.device)
     decoded = generate_shapes(model, args.count, torch.Generator().manual_seed(args.seed), args.threshold)
     methods = [{"name": "generate", "checkpoint": str(path), "seed": args.seed, "sample": k,
@@ -803,7 +851,7 @@ def _cmd_generate(args) -> int:
         return (f"{args.count} shapes generated | cuboids used: {' '.join(map(str, used))} of "
                 f"{decoded.cuboids.num_cuboids}")
 
-    return _write_decoded(args, decoded, _stems("generated", args.count), methods, start, summary)
+    return _write_decoded(args, decoded, stems, methods, start, summary)
 
 
 def _add_interpolate_command(sub) -> None:
@@ -832,9 +880,13 @@ def _cmd_interpolate(args) -> int:
     start = time.perf_counter()
     if args.steps < 2:
         raise UserError(f"--steps must be at least 2 (the two ends), got {args.steps}")
-    _check_out_dir(args)
+    from .results import result_files  # imports torch: start-up time
+
     _check_input(args.shape_a)
     _check_input(args.shape_b)
+    stems = _stems("step", args.steps)
+    _check_out_dir(args, [args.shape_a, args.shape_b, *[m for m in [args.model] if Path(m).is_file()]],
+                   [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
     model, state, path = _load_model(args.model, args.device)
     n_points = args.points or _model_points(state)
     clouds = [_load_shape(shape, n_points, args.seed) for shape in (args.shape_a, args.shape_b)]
@@ -852,7 +904,7 @@ def _cmd_interpolate(args) -> int:
                 f"neighbouring steps {interp.max_step_change:.4g} ({interp.evenness:.2f} x the mean step; shape "
                 f"diagonal 1) | {int(interp.existence_changes.sum())} cuboid(s) appear or disappear")
 
-    return _write_decoded(args, interp.shapes, _stems("step", args.steps), methods, start, summary)
+    return _write_decoded(args, interp.shapes, stems, methods, start, summary)
 
 
 def _add_view_command(sub) -> None:
@@ -891,6 +943,24 @@ def _missing_package(exc: ImportError) -> int:
     return 1
 
 
+def _resume_note(args) -> str:
+    """For an interrupted train: the step from which --resume continues (that of OUT/last.pt), or that none can."""
+    if args.command != "train":
+        return ""
+    last = Path(args.out) / "last.pt"
+    try:
+        from .checkpoint import load_checkpoint  # imports torch: start-up time (already imported by train)
+
+        step = load_checkpoint(last)["step"]
+    except (OSError, ValueError, KeyError, ImportError):
+        return f"; no checkpoint was written in {args.out} yet, so --resume has nothing to continue"
+    return f"; --resume continues from step {step} ({last}), the last checkpoint"
+
+
+#: The commands that write into an --out folder, which they lock while they run.
+_WRITES_INTO_OUT = ("train", "fit", "abstract", "generate", "interpolate")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``cuboidlib`` command line.
 
@@ -908,9 +978,20 @@ def main(argv: list[str] | None = None) -> int:
         return _missing_package(exc)
     args.argv = argv
     try:
+        if args.command in _WRITES_INTO_OUT and os.environ.get("RANK", "0") == "0" and not getattr(
+                args, "print_config", False):
+            try:  # one run at a time writes into a folder (under torchrun, rank 0 holds it)
+                lock = output_lock(args.out)
+                lock.__enter__()
+            except ValueError as exc:
+                raise UserError(f"--out {exc}") from exc
+            try:
+                return int(args.func(args) or 0)
+            finally:
+                lock.__exit__(None, None, None)
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"cuboidlib {args.command}: interrupted", file=sys.stderr)
+        print(f"cuboidlib {args.command}: interrupted{_resume_note(args)}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - every error becomes one readable line unless --traceback
         if args.traceback:

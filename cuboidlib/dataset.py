@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Callable, Sequence
@@ -19,8 +20,9 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ._checks import check_int
+from ._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES, check_int, check_size
 from .config import ConfigDict, derive_seed
+from .files import MANIFEST, result_files_in
 from .io import (
     MESH_SUFFIXES,
     POINT_CLOUD_SUFFIXES,
@@ -72,11 +74,18 @@ class DataConfig(ConfigDict):
             raise ValueError(f"{name}.category must be one of {CATEGORIES}, got {self.category!r}")
         for key in ("n_shapes", "n_points"):
             check_int(getattr(self, key), f"{name}.{key}", minimum=1)
+        check_size(self.n_points, f"{name}.n_points", MAX_SHAPE_POINTS)
+        check_size(self.n_shapes, f"{name}.n_shapes", MAX_SHAPES, "shapes")
+        if self.data_dir is None:  # a procedural collection is allocated at once
+            check_size(self.n_shapes * self.n_points, f"{name}.n_shapes x n_points", MAX_COLLECTION_POINTS)
         for key in ("data_seed", "split_seed"):
             check_int(getattr(self, key), f"{name}.{key}", minimum=0)
         fractions = self.split_fractions
         if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
             raise ValueError(f"{name}.split_fractions must be (train, validation, test), got {fractions!r}")
+        for k, f in enumerate(fractions):
+            if isinstance(f, bool) or not isinstance(f, (int, float)) or not math.isfinite(f):
+                raise ValueError(f"{name}.split_fractions[{k}] must be a finite number, got {f!r}")
         self.split_fractions = tuple(float(f) for f in fractions)
         train, val, test = self.split_fractions
         if train <= 0 or val <= 0 or test < 0 or abs(train + val + test - 1) > 1e-6:
@@ -333,9 +342,16 @@ def _data_files(folder: Path) -> list[Path]:
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such data folder")
     suffixes = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
-    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    found = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    results = {parent: result_files_in(parent) for parent in {p.parent for p in found}}
+    files = [p for p in found if p.name not in results[p.parent]]
+    if len(files) < len(found):  # cuboidlib's own outputs (meshes of cuboids, segmented points) are not shapes
+        warnings.warn(f"{folder}: {len(found) - len(files)} file(s) below it are cuboidlib results (listed in a "
+                      f"{MANIFEST} or beside a result JSON, e.g. {[p for p in found if p not in files][0]}); they are "
+                      "not read as shapes", stacklevel=4)
     if not files:
-        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})")
+        raise ValueError(f"{folder}: holds no point-cloud or mesh file ({', '.join(sorted(suffixes))})"
+                         + (" other than cuboidlib results" if found else ""))
     return files
 
 

@@ -59,7 +59,7 @@ import numpy as np
 import torch
 import trimesh
 
-from .files import MESH_FORMATS, atomic_path, write_text_atomic
+from .files import LOCK_FILE, MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, check_outputs_spare_inputs, write_text_atomic
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
 from .io import read_point_cloud
@@ -89,7 +89,7 @@ __all__ = [
     "prepare_output_folder",
 ]
 
-JSON_FORMAT = "cuboidlib-cuboids"
+JSON_FORMAT = RESULT_FORMAT
 JSON_VERSION = 1
 COORDINATES = ("original", "normalized")
 # MESH_FORMATS, part of this module's names, is defined in cuboidlib.files, which the command line reads
@@ -631,7 +631,7 @@ def write_segmented_point_cloud(path: str | os.PathLike, points, labels, normals
 # Output folders: refuse to mix runs, and a manifest of what each run wrote
 # ----------------------------------------------------------------------------------------------
 
-MANIFEST = "cuboidlib-manifest.json"
+# MANIFEST (cuboidlib.files): the file name of a results folder's manifest.
 
 
 def read_manifest(folder: str | os.PathLike) -> dict | None:
@@ -690,7 +690,7 @@ def prepare_output_folder(folder: str | os.PathLike, overwrite: bool = False) ->
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{folder}: exists and is not a folder")
-    present = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    present = sorted(p.name for p in folder.iterdir() if p.name != LOCK_FILE) if folder.is_dir() else []
     if not present:
         folder.mkdir(parents=True, exist_ok=True)
         return folder
@@ -748,11 +748,24 @@ def cuboid_part_names(meta: dict) -> list[str | None] | None:
     return [names[k] if 0 <= k < len(names) else None for k in labels]
 
 
+def _points_file(json_path: Path) -> str | None:
+    """The ``points_file`` a result JSON names (a file name beside it), or None."""
+    try:
+        name = json.loads(json_path.read_text(encoding="utf-8")).get("points_file")
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return None
+    return name if isinstance(name, str) and name and Path(name).name == name else None
+
+
 def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray | None, list | None]:
     cuboids, meta = read_cuboids_json(json_path)
     points, labels = np.zeros((0, 3)), None
     if meta.get("points_file"):
-        cloud = read_point_cloud(json_path.parent / meta["points_file"])
+        name = meta["points_file"]
+        if not isinstance(name, str) or Path(name).name != name or name in (".", ".."):
+            raise ValueError(f"{json_path}: points_file {name!r} must be the name of a file beside the JSON (as "
+                             "cuboidlib writes it); a result never reads points from another folder")
+        cloud = read_point_cloud(json_path.parent / name)
         points, labels = cloud.points, cloud.labels
     title = f"{meta.get('source') or json_path.stem}: {meta['num_existing']} of {meta['num_cuboids']} cuboids"
     return title, cuboids, points, labels, cuboid_part_names(meta)
@@ -787,8 +800,13 @@ def write_view_html(
     source = Path(result)
     jsons = _result_jsons(source)
     first = Path(out) if out is not None else (source if source.is_dir() else source.parent) / "view.html"
+    if first.suffix.lower() not in (".html", ".htm"):
+        raise ValueError(f"{first}: the page must be an .html file (it is written as HTML); got "
+                         f"{first.suffix or 'no suffix'!r}")
     chunks = [jsons[i:i + per_page] for i in range(0, len(jsons), per_page)]
     pages = [first] + [first.with_name(f"{first.stem}_{k}{first.suffix}") for k in range(2, len(chunks) + 1)]
+    inputs = [*jsons, *[p.parent / _points_file(p) for p in jsons if _points_file(p)]]
+    check_outputs_spare_inputs(pages, [p for p in inputs if p.exists()], "the page")
     for k, (chunk, page) in enumerate(zip(chunks, pages)):
         items = [_result_item(p) for p in chunk]
         if len(items) == 1:

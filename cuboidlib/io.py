@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import sys
 import warnings
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ._checks import MAX_SHAPE_POINTS, check_size
 from .files import atomic_path
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
@@ -62,7 +64,7 @@ class PointCloud:
     """A point cloud with optional normals and labels.
 
     Attributes:
-        points: (N, 3) float32.
+        points: (N, 3): float32 once normalised (:func:`load_point_cloud`), float64 as read from a file.
         normals: (N, 3) float32 unit normals, or None.
         labels: (N,) int64 part labels, or None.
         center, scale: (3,) float64 and a float, the normalisation applied: the original coordinates
@@ -222,10 +224,7 @@ def _read_ply_vertices(path: Path) -> tuple[dict, int]:
         rows = lines[start:start + vertex["count"]]
         if len(rows) < vertex["count"]:
             raise ValueError(f"{path}: PLY file is truncated ({len(rows)} of {vertex['count']} vertex rows)")
-        try:
-            table = np.array(" ".join(rows).split(), dtype=np.float64).reshape(vertex["count"], len(vertex["props"]))
-        except ValueError as exc:
-            raise ValueError(f"{path}: malformed ASCII PLY vertex rows ({exc})") from exc
+        table = _ascii_rows(rows, len(vertex["props"]), path, first_line=data[:body].count(b"\n") + start + 1)
         return {p[0]: table[:, i] for i, p in enumerate(vertex["props"])}, n_faces
     if any(p[1] == "list" for e in before for p in e["props"]):
         raise ValueError(f"{path}: binary PLY with list elements before the vertices is not supported")
@@ -236,6 +235,31 @@ def _read_ply_vertices(path: Path) -> tuple[dict, int]:
         raise ValueError(f"{path}: PLY file is truncated (expected {vertex['count']} vertices)")
     table = np.frombuffer(data, dtype=dtype, count=vertex["count"], offset=offset)
     return {name: table[name].astype(np.float64) for name in dtype.names}, n_faces
+
+
+def _ascii_rows(rows: list[str], width: int, path: Path, first_line: int) -> np.ndarray:
+    """The (len(rows), width) float64 table of ASCII PLY rows; every row must hold exactly ``width`` numbers.
+
+    Args:
+        rows: the vertex lines.
+        width: the number of vertex properties.
+        path: the file, for messages.
+        first_line: the 1-based line number of ``rows[0]`` in the file, for messages.
+
+    Returns:
+        The table.
+    """
+    lengths = np.fromiter((len(r.split()) for r in rows), dtype=np.int64, count=len(rows))
+    bad = np.flatnonzero(lengths != width)
+    if bad.size:
+        k = int(bad[0])
+        raise ValueError(f"{path}: {bad.size} ASCII PLY vertex row(s) do not hold the {width} values the header "
+                         f"declares (first: line {first_line + k}, vertex {k}, with {int(lengths[k])} values); "
+                         "the file is malformed")
+    try:
+        return np.array(" ".join(rows).split(), dtype=np.float64).reshape(len(rows), width)
+    except ValueError as exc:
+        raise ValueError(f"{path}: non-numeric value in the ASCII PLY vertex rows ({exc})") from exc
 
 
 def _read_ply(path: Path) -> PointCloud:
@@ -282,16 +306,53 @@ def _write_ply(path: Path, points, normals, labels, ascii: bool) -> None:
 # ------------------------------------------------------------------------------- text and npy
 
 
-def _from_columns(table: np.ndarray, path: Path) -> PointCloud:
+#: How far from 1 the length of every row of columns 4-6 may be for them to pass as normals (``normals="auto"``).
+_UNIT_TOLERANCE = 0.1
+
+
+def _columns_look_like_normals(values: np.ndarray) -> tuple[bool, str]:
+    """Whether columns 4-6 of a text or ``.npy`` table look like normals, and what they look like instead.
+
+    Args:
+        values: (N, 3) float64.
+
+    Returns:
+        ``(looks_like_normals, description)``: normals are unit vectors (rows of zeros aside, which
+        :func:`validate_point_cloud` reports); the description says what was found otherwise.
+    """
+    lengths = np.linalg.norm(values, axis=1)
+    lengths = lengths[lengths > 0]
+    if lengths.size and np.all(np.abs(lengths - 1) <= _UNIT_TOLERANCE):
+        return True, "unit vectors"
+    lo, hi = float(values.min()), float(values.max())
+    whole = bool(np.all(values == np.round(values)))
+    if lo >= 0 and hi <= 1:
+        return False, "values in [0, 1], like RGB colours, not unit vectors"
+    if lo >= 0 and hi <= 255 and whole:
+        return False, "whole numbers in [0, 255], like RGB colours, not unit vectors"
+    if not lengths.size:
+        return False, "only zeros"
+    return False, f"vectors of lengths {lengths.min():.3g} to {lengths.max():.3g}, not unit vectors"
+
+
+def _from_columns(table: np.ndarray, path: Path, normals: str = "auto") -> PointCloud:
     if table.ndim != 2 or table.shape[1] not in (3, 6, 7):
         cols = table.shape[1] if table.ndim == 2 else table.ndim
         raise ValueError(f"{path}: expected 3 (x y z), 6 (+ nx ny nz) or 7 (+ label) columns, got {cols}")
-    normals = table[:, 3:6] if table.shape[1] >= 6 else None
+    extra = table[:, 3:6] if table.shape[1] >= 6 else None
+    if extra is not None and normals == "ignore":
+        extra = None
+    elif extra is not None and normals == "auto" and np.isfinite(extra).all():
+        looks, found = _columns_look_like_normals(extra)
+        if not looks:
+            warnings.warn(f"{path}: columns 4-6 hold {found}; they are not read as normals (normals are "
+                          "estimated instead); if they are normals, say so with normals='file'", stacklevel=4)
+            extra = None
     labels = _as_labels(table[:, 6], str(path)) if table.shape[1] == 7 else None
-    return PointCloud(table[:, :3].astype(np.float64), normals, labels, source=str(path))
+    return PointCloud(table[:, :3].astype(np.float64), extra, labels, source=str(path))
 
 
-def _read_text(path: Path) -> PointCloud:
+def _read_text(path: Path, normals: str) -> PointCloud:
     # numpy's C parser, one pass over the lines (commas read as spaces, '#' starts a comment)
     with open(path, encoding="utf-8", errors="replace") as f, warnings.catch_warnings():
         warnings.filterwarnings("ignore", "loadtxt: input contained no data")  # reported below, with the file
@@ -303,10 +364,10 @@ def _read_text(path: Path) -> PointCloud:
             raise ValueError(f"{path}: {problem} ({detail})") from exc
     if table.size == 0:
         raise ValueError(f"{path}: contains no points")
-    return _from_columns(table, path)
+    return _from_columns(table, path, normals)
 
 
-def _read_npy(path: Path) -> PointCloud:
+def _read_npy(path: Path, normals: str) -> PointCloud:
     try:
         table = np.load(path, allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 - re-raised with the file name
@@ -315,10 +376,10 @@ def _read_npy(path: Path) -> PointCloud:
         raise ValueError(f"{path}: expected a numeric array, got dtype {table.dtype}")
     if table.size == 0:
         raise ValueError(f"{path}: contains no points")
-    return _from_columns(table.astype(np.float64), path)
+    return _from_columns(table.astype(np.float64), path, normals)
 
 
-def read_point_cloud(path: str | os.PathLike) -> PointCloud:
+def read_point_cloud(path: str | os.PathLike, normals: str = "auto") -> PointCloud:
     """Read a point cloud file as stored (no normalisation, no estimation of normals).
 
     Args:
@@ -326,9 +387,15 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
             label), ``.txt``/``.pts``/``.xyz`` (whitespace or comma separated rows ``x y z [nx ny nz
             [label]]``, the ShapeNet-part "normal" layout) or ``.npy`` ((N, 3), (N, 6) as the authors'
             released data, or (N, 7)).
+        normals: what columns 4-6 of a text or ``.npy`` file are: ``"auto"`` (normals when every row is a
+            unit vector; otherwise, e.g. RGB colours, they are dropped with a warning that says what they
+            hold), ``"file"`` (normals, whatever they hold) or ``"ignore"`` (dropped). A PLY file names its
+            normals (nx, ny, nz), so they are always read.
 
     Returns:
-        A :class:`PointCloud`: float32 points, unit float32 normals or None, int64 labels or None.
+        A :class:`PointCloud`: float64 points (the coordinates as stored: normalise before casting to
+        float32, so that coordinates far from the origin keep their precision), unit float32 normals or
+        None, int64 labels or None.
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -336,20 +403,22 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
             all points identical, zero normals.
     """
     path = _check_file(path)
+    if normals not in ("auto", "file", "ignore"):
+        raise ValueError(f"normals must be 'auto', 'file' or 'ignore', got {normals!r}")
     suffix = path.suffix.lower()
     if suffix == ".ply":
         pc = _read_ply(path)
     elif suffix in (".txt", ".pts", ".xyz"):
-        pc = _read_text(path)
+        pc = _read_text(path, normals)
     elif suffix == ".npy":
-        pc = _read_npy(path)
+        pc = _read_npy(path, normals)
     else:
         raise ValueError(f"{path}: unknown point cloud format {suffix!r}; expected one of {POINT_CLOUD_SUFFIXES}")
     validate_point_cloud(pc.points, pc.normals, pc.labels, str(path))
     if np.abs(pc.points).max() > _FLOAT32_MAX:
         raise ValueError(f"{path}: coordinates up to {np.abs(pc.points).max():.3g} exceed the float32 range "
                          "cuboidlib reads points in; rescale the file")
-    pc.points = pc.points.astype(np.float32)
+    pc.points = pc.points.astype(np.float64)
     if pc.normals is not None:
         pc.normals = _unit(pc.normals)
     return pc
@@ -425,7 +494,62 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
 # --------------------------------------------------------------------------------------- meshes
 
 
+# A face line of an OBJ file with a vertex index 0 (OBJ counts from 1; trimesh would silently shift such a file).
+_OBJ_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r\n]|$)")
+
+
+def _check_obj_indices(path: Path) -> None:
+    """Refuse an OBJ file whose faces use vertex index 0 (a 0-based file): OBJ indices start at 1."""
+    data = path.read_bytes()
+    found = _OBJ_ZERO_INDEX.search(data)
+    if found:
+        line = data.count(b"\n", 0, found.start()) + 1
+        end = data.find(b"\n", found.start())
+        text = data[found.start():end if end >= 0 else len(data)].decode(errors="replace").strip()
+        raise ValueError(f"{path}: line {line} ({text!r}) refers to vertex "
+                         "0, but OBJ vertex indices start at 1; the file seems to count from 0. Add 1 to every face "
+                         "index (or export it again) so that no vertex is dropped or shifted")
+
+
+def _check_glb(path: Path) -> None:
+    """Refuse a GLB file whose header, chunks or buffers claim more bytes than the file holds."""
+    import struct
+
+    data = path.read_bytes()
+    if len(data) < 20:
+        raise ValueError(f"{path}: unreadable mesh: an empty or truncated GLB file ({len(data)} bytes; a GLB has a 12-byte header "
+                         "and at least one chunk)")
+    magic, version, length = struct.unpack_from("<4sII", data)
+    if magic != b"glTF":
+        raise ValueError(f"{path}: unreadable mesh: not a GLB file (it does not start with 'glTF')")
+    if length != len(data):
+        raise ValueError(f"{path}: unreadable mesh: the GLB header declares {length:,} bytes but the file has {len(data):,}; "
+                         "it is truncated or damaged")
+    offset, chunks = 12, {}
+    while offset + 8 <= length:
+        size, kind = struct.unpack_from("<I4s", data, offset)
+        if offset + 8 + size > length:
+            raise ValueError(f"{path}: unreadable mesh: a GLB chunk declares {size:,} bytes, beyond the end of the file "
+                             f"({length:,} bytes); it is truncated or damaged")
+        chunks.setdefault(kind, data[offset + 8:offset + 8 + size])
+        offset += 8 + size
+    try:
+        doc = json.loads(chunks.get(b"JSON", b"").decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: unreadable mesh: the GLB's JSON chunk is missing or unreadable ({exc})") from exc
+    binary = len(chunks.get(b"BIN\x00", b""))
+    for k, buffer in enumerate(doc.get("buffers", []) if isinstance(doc, dict) else []):
+        claimed = buffer.get("byteLength") if isinstance(buffer, dict) else None
+        if isinstance(buffer, dict) and "uri" not in buffer and (not isinstance(claimed, int) or claimed > binary):
+            raise ValueError(f"{path}: unreadable mesh: GLB buffer {k} claims {claimed!r} bytes but the file's binary chunk holds "
+                             f"{binary:,}; it is damaged")
+
+
 def _load_mesh(path: Path) -> trimesh.Trimesh:
+    if path.suffix.lower() == ".obj":
+        _check_obj_indices(path)
+    if path.suffix.lower() == ".glb":
+        _check_glb(path)
     try:
         loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # noqa: BLE001 - re-raised with the file name
@@ -463,7 +587,7 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
 
     Args:
         path: any mesh trimesh reads (OBJ, PLY with faces, OFF, STL, GLB/GLTF).
-        n_points: number of points N.
+        n_points: number of points N, from 1 to ``cuboidlib._checks.MAX_SHAPE_POINTS``.
         seed: seed of the sampling.
         orient: ``"auto"``: for a watertight mesh with consistent winding, trust the winding (flipped
             as a whole if the enclosed volume is negative), otherwise orient the sampled normals
@@ -471,13 +595,13 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
             the face winding; ``"visibility"``: always re-orient.
 
     Returns:
-        A :class:`PointCloud` in the file's coordinates (not normalised); its labels are those of
+        A :class:`PointCloud` in the file's coordinates (not normalised; float64 points, so that a mesh far
+        from the origin keeps its precision until it is normalised), float32 normals; its labels are those of
         the sampled faces when the file is a PLY mesh with a per-face ``label`` property (as
         :func:`write_shape_mesh` writes), otherwise None.
     """
     path = _check_file(path)
-    if n_points < 1:
-        raise ValueError(f"n_points must be a positive integer, got {n_points}")
+    n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     if orient not in ("auto", "winding", "visibility"):
         raise ValueError(f"orient must be 'auto', 'winding' or 'visibility', got {orient!r}")
     mesh = _load_mesh(path)
@@ -498,7 +622,7 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
     validate_point_cloud(points, normals, None, str(path))
     face_labels = _ply_face_labels(mesh)
     labels = None if face_labels is None else face_labels[face]
-    return PointCloud(points.astype(np.float32), normals.astype(np.float32), labels, source=str(path))
+    return PointCloud(points, normals.astype(np.float32), labels, source=str(path))
 
 
 def _ply_face_labels(mesh: trimesh.Trimesh) -> np.ndarray | None:
@@ -542,30 +666,36 @@ def load_point_cloud(
         path: a point cloud (``.ply`` without faces, ``.txt``, ``.pts``, ``.xyz``, ``.npy``) or a mesh
             (``.obj``, ``.off``, ``.stl``, ``.glb``, ``.gltf``, ``.ply`` with faces).
         n_points: for meshes, the number of points to sample (required); for point clouds, a random
-            subset of this size is kept (an error if the file has fewer points).
+            subset of this size is kept (an error if the file has fewer points). At most
+            ``cuboidlib._checks.MAX_SHAPE_POINTS``, checked before the file is read.
         seed: seed of the sampling / subsampling.
         normalize_shape: apply the course normalisation (bounding-box centre to the origin, diagonal
             1) and record ``(center, scale)``.
-        normals: ``"auto"`` (use the file's normals, estimate them when missing), ``"estimate"``
-            (always estimate) or ``"file"`` (require them in the file).
+        normals: ``"auto"`` (use the file's normals, estimate them when missing; columns 4-6 of a text or
+            ``.npy`` file count as normals only when they are unit vectors, see :func:`read_point_cloud`),
+            ``"estimate"`` (always estimate) or ``"file"`` (require them in the file, and take columns 4-6 as
+            normals whatever they hold).
         labels_path: an optional separate label file (one integer per point, e.g. ``.seg``).
         k: neighbours for normal estimation.
         fewer_ok: for point clouds with fewer than ``n_points`` points, keep them all instead of
             raising.
 
     Returns:
-        A :class:`PointCloud` with normals; its ``center`` and ``scale`` map it back to the file's coordinates.
+        A :class:`PointCloud` with float32 points and normals; its ``center`` and ``scale`` map it back to the
+        file's coordinates (normalised in float64 before the points are cast to float32).
     """
     path = _check_file(path)
     if normals not in ("auto", "estimate", "file"):
         raise ValueError(f"normals must be 'auto', 'estimate' or 'file', got {normals!r}")
+    if n_points is not None:
+        n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     is_mesh = is_mesh_file(path)
     if is_mesh:
         if n_points is None:
             raise ValueError(f"{path}: is a mesh; give n_points to say how many points to sample")
         pc = load_mesh_as_point_cloud(path, n_points, seed)
     else:
-        pc = read_point_cloud(path)
+        pc = read_point_cloud(path, normals={"auto": "auto", "file": "file", "estimate": "ignore"}[normals])
     if labels_path is not None:
         pc.labels = read_labels(labels_path)
         validate_point_cloud(pc.points, None, pc.labels, f"{path} with labels {labels_path}")
@@ -580,9 +710,17 @@ def load_point_cloud(
             pc.points = pc.points[keep]
             pc.normals = None if pc.normals is None else pc.normals[keep]
             pc.labels = None if pc.labels is None else pc.labels[keep]
-    if normalize_shape:
-        pc.points, pc.center, scale = normalize(pc.points.astype(np.float64))
+    wide = pc.points.astype(np.float64)
+    if normalize_shape:  # in float64, then cast: map coordinates (1e6 and more) keep their precision
+        pc.points, pc.center, scale = normalize(wide)
         pc.points, pc.scale = pc.points.astype(np.float32), float(scale)
+    else:
+        pc.points = wide.astype(np.float32)
+        lost = float(np.abs(pc.points - wide).max()) / float(np.linalg.norm(np.ptp(wide, axis=0)))
+        if lost > 1e-4:
+            warnings.warn(f"{path}: in float32 the coordinates move by up to {lost:.2g} of the shape's size (they lie "
+                          "far from the origin); normalise the shape (normalize_shape=True) to keep its detail",
+                          stacklevel=2)
     if pc.normals is None or normals == "estimate":
         if len(pc) < 3:
             raise ValueError(f"{path}: needs at least 3 points to estimate normals, has {len(pc)}")

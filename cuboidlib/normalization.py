@@ -16,8 +16,10 @@ from ._checks import as_float_tensor, check_finite
 
 __all__ = ["normalize", "denormalize", "bounding_box"]
 
-# Diagonals shorter than this (relative to the largest coordinate magnitude) count as "all points identical".
-_DEGENERATE_RTOL = 1e-9
+# Diagonals at most this fraction of the largest coordinate magnitude count as "all points identical": below it,
+# even float64 (the normalisation's precision, eps 2.2e-16) holds fewer than ~50 steps across the shape. The bound
+# is relative only: a shape of size 1e-30 near the origin is a shape, not a point.
+_DEGENERATE_RTOL = 1e-14
 
 
 def _to_tensor(points, name: str) -> tuple[torch.Tensor, bool]:
@@ -65,13 +67,21 @@ def normalize(points: torch.Tensor | np.ndarray) -> tuple:
     lo, hi = wide.amin(dim=-2), wide.amax(dim=-2)
     center = (lo + hi) / 2
     scale = torch.linalg.vector_norm(hi - lo, dim=-1)
-    magnitude = wide.detach().abs().amax(dim=(-2, -1)).clamp_min(1.0)
+    magnitude = wide.detach().abs().amax(dim=(-2, -1))
     degenerate = scale <= _DEGENERATE_RTOL * magnitude
     if degenerate.any():
-        which = "" if t.dim() == 2 else f" (batch entry {int(torch.nonzero(degenerate)[0])})"
+        first = int(torch.nonzero(degenerate.reshape(-1))[0])
+        which = "" if t.dim() == 2 else f" (batch entry {first})"
+        size, far = float(scale.reshape(-1)[first]), float(magnitude.reshape(-1)[first])
+        if size == 0:
+            raise ValueError(
+                f"points are all identical{which}: the bounding box has zero size, so the shape cannot be "
+                "normalised to unit diagonal"
+            )
         raise ValueError(
-            f"points are all identical{which}: the bounding box has zero size, so the shape cannot be "
-            "normalised to unit diagonal"
+            f"points are all identical{which} to float64 precision: the bounding box diagonal {size:.3g} is at "
+            f"most {_DEGENERATE_RTOL:g} of the coordinates' magnitude {far:.3g}, too few digits to normalise; "
+            "subtract a nearby origin from the coordinates first"
         )
     if not torch.isfinite(scale.to(t.dtype)).all():
         raise ValueError(

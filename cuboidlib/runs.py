@@ -11,6 +11,7 @@ validates and writes, and a run resumes with the number of processes that wrote 
 from __future__ import annotations
 
 import csv
+import io
 import os
 import time
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from pathlib import Path
 import torch
 
 from .checkpoint import check_config_matches, save_checkpoint
+from .files import write_text_atomic
 
 __all__ = ["CoreShare", "Distributed", "TrainingDiverged", "TrainResult", "RunLog", "gather_rng_states", "check_finite_weights",
            "save_last", "check_resumable"]
@@ -241,13 +243,14 @@ class RunLog:
         if not enabled:
             return
         rows = []
-        if resume_step is not None and path.is_file():
+        if resume_step is not None and path.is_file() and not path.is_symlink():
             with path.open(newline="") as f:
                 rows = [r for r in csv.DictReader(f) if int(r["step"]) <= resume_step]
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fields)
-            writer.writeheader()
-            writer.writerows(rows)
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, fields, lineterminator="\r\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        write_text_atomic(path, text.getvalue())  # replaces a link there, never writes through it
 
     def write(self, step: int, epoch: int, split: str, values: dict[str, float], seconds: float) -> None:
         """Append one row.
@@ -262,8 +265,15 @@ class RunLog:
             return
         row = {"step": step, "epoch": epoch, "split": split, **{k: f"{v:.6g}" for k, v in values.items()},
                "seconds": f"{seconds:.1f}"}
-        with self.path.open("a", newline="") as f:
-            csv.DictWriter(f, self.fields).writerow(row)
+        text = io.StringIO(newline="")
+        csv.DictWriter(text, self.fields, lineterminator="\r\n").writerow(row)
+        try:  # O_NOFOLLOW: a link put there after the run started is refused, not written through
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0))
+        except OSError as exc:
+            raise OSError(f"{self.path}: cannot append to the run's log ({exc.strerror or exc}); it must stay the "
+                          "plain file the run made (not a symbolic link)") from exc
+        with os.fdopen(fd, "a", newline="") as f:
+            f.write(text.getvalue())
 
 
 class CoreShare:

@@ -22,6 +22,7 @@ from typing import Callable, Sequence
 import numpy as np
 import trimesh
 
+from ._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES, check_size
 from .normalization import normalize
 from .solids import (
     Capsule,
@@ -698,8 +699,7 @@ def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 
         for any ``n > index``, plus its parts (for meshes and exact inside/outside tests).
     """
     _check_category(category)
-    if n_points < 1:
-        raise ValueError(f"n_points must be a positive integer, got {n_points}")
+    n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     solids, structure, sid, p, nn, labels, center, scale = _sample_shape(category, index, seed, n_points)
     return Shape(
         category=category,
@@ -842,8 +842,9 @@ def make_collection(
         A :class:`ShapeCollection`: points (S, N, 3) and normals (S, N, 3) float32, labels (S, N) int64.
     """
     _check_category(category)
-    if n_shapes < 1 or n_points < 1:
-        raise ValueError(f"n_shapes and n_points must be positive integers, got {n_shapes} and {n_points}")
+    n_shapes = check_size(n_shapes, "n_shapes", MAX_SHAPES, "shapes")
+    n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
+    check_size(n_shapes * n_points, f"n_shapes x n_points ({n_shapes:,} x {n_points:,})", MAX_COLLECTION_POINTS)
     cache_file = None
     if use_cache:
         cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()

@@ -22,6 +22,7 @@ from . import kernels
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
 from ._checks import check_int
 from .config import derive_seed, read_config_file, resolve_device
+from .files import write_text_atomic
 from .applications import checkpoint_dir
 from .dataset import DATA_FIELDS, DataConfig, ShapeSet, load_splits
 from .evaluation import predict_cuboids, segmentation_scores
@@ -205,15 +206,21 @@ class TrainConfig(DataConfig):
         """Write the config as JSON.
 
         Args:
-            path: the file to write; its folder is created if missing.
+            path: the file to write (atomically; a symbolic link there is replaced, its target never written);
+                its folder is created if missing.
 
         Returns:
             ``path`` as a Path.
         """
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
-        return path
+        return write_text_atomic(path, self.to_json())
+
+    def to_json(self) -> str:
+        """The text :meth:`save_json` writes.
+
+        Returns:
+            The config as indented JSON, with a final newline.
+        """
+        return json.dumps(self.to_dict(), indent=2) + "\n"
 
     @classmethod
     def load_json(cls, path: str | os.PathLike) -> "TrainConfig":
@@ -357,6 +364,8 @@ class Trainer:
             raise FileNotFoundError(f"{last}: nothing to resume (no checkpoint in {self.out_dir})")
         if not resume and last.is_file():
             raise FileExistsError(f"{self.out_dir} already holds a run ({last}); resume it or choose another folder")
+        if not resume:
+            _check_new_run_folder(self.out_dir, config)
 
         show = not quiet and self.dist.is_main and sys.stderr.isatty()
         splits = splits if splits is not None else load_splits(config, progress=show)
@@ -642,6 +651,41 @@ class Trainer:
 
 #: The folder, inside a two-stage run's folder, of its second stage (:func:`train_then_finetune`).
 FINETUNE_DIR = "finetune"
+
+
+#: The files a run writes in its folder; a new run refuses a folder where one of them is another's.
+RUN_FILES = ("config.json", "log.csv", "best.pt", "last.pt")
+
+
+def _check_new_run_folder(out_dir: Path, config: TrainConfig) -> None:
+    """Refuse to start a run in a folder holding files it would overwrite (or links it would write through).
+
+    The one exception is the same run started again before its first checkpoint: a ``config.json`` with
+    exactly this config's text (its ``log.csv`` and ``best.pt`` are then this run's own).
+
+    Args:
+        out_dir: the run folder.
+        config: the run's config.
+
+    Raises:
+        FileExistsError: naming the files and what to do.
+    """
+    present = [name for name in RUN_FILES if os.path.lexists(out_dir / name)]
+    if not present:
+        return
+    stored = out_dir / "config.json"
+    try:
+        same = not stored.is_symlink() and stored.read_text(encoding="utf-8") == config.to_json()
+    except (OSError, UnicodeDecodeError):
+        same = False
+    links = [name for name in present if (out_dir / name).is_symlink()]
+    if same and not links:
+        return
+    raise FileExistsError(
+        f"{out_dir} already holds {', '.join(present)} but no run to resume (no last.pt of this config); a new run "
+        "would overwrite them" + (f" ({', '.join(links)}: symbolic link(s), which cuboidlib never writes through)"
+                                  if links else "") + ". Choose another --out folder, or move those files away"
+    )
 
 
 def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str | os.PathLike,

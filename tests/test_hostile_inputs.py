@@ -4,7 +4,9 @@ The first part keeps one reproduction per reported case; the second runs propert
 (Hypothesis) over the public functions, each checked against a float64 reference where one exists.
 """
 
+import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -334,10 +336,374 @@ def test_point_cloud_files_round_trip_property(tmp_path_factory, seed, n, suffix
         assert "identical" in str(exc) and np.ptp(points.astype(np.float32), axis=0).max() == 0
         return
     try:
-        pc = io.read_point_cloud(path)
+        pc = io.read_point_cloud(path, normals="file")  # random vectors, not unit ones: normals because we say so
     except ValueError as exc:  # float32 storage may merge all points of a tiny cloud far from 0
         assert "identical" in str(exc)
         return
     np.testing.assert_allclose(pc.points, points, rtol=2e-6 if suffix != ".txt" else 1e-6, atol=1e-6 * magnitude)
     if with_labels:
         np.testing.assert_array_equal(pc.labels, labels)
+
+
+# ------------------------------------------------------------------------------ files: no silent wrong answers
+
+FAR = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def _write_obj(path, vertices, faces):
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in np.asarray(vertices, dtype=np.float64).tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in np.asarray(faces).tolist()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _far_tolerance(offset, scale):
+    """float32 on the unit shape, plus what float64 loses of an offset far larger than the shape."""
+    return 2e-6 + 8 * np.finfo(np.float64).eps * float(np.abs(offset).max()) / scale
+
+
+@FAR
+@given(seed=st.integers(0, 2**16), offset=st.tuples(*[st.floats(-1e7, 1e7)] * 3),
+       log_scale=st.floats(-6, 6), suffix=st.sampled_from([".npy", ".txt", ".ply"]))
+def test_far_and_scaled_point_clouds_normalise_to_the_same_shape_property(tmp_path, chair, seed, offset, log_scale,
+                                                                          suffix):
+    scale = 10.0**log_scale
+    unit = chair.points.astype(np.float64)
+    moved = unit * scale + np.asarray(offset)
+    path = tmp_path / f"far{seed}{suffix}"
+    if suffix == ".npy":
+        np.save(path, np.concatenate([moved, chair.normals], axis=1))
+    elif suffix == ".txt":
+        np.savetxt(path, np.concatenate([moved, chair.normals], axis=1), fmt="%.17g")
+    else:  # an ASCII PLY of doubles
+        header = ("ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\n"
+                  "property double z\nend_header\n" % len(moved))
+        path.write_text(header + "\n".join(" ".join(repr(v) for v in row) for row in moved.tolist()) + "\n")
+    want, _, _ = normalize(unit)
+    got = io.load_point_cloud(path)
+    assert got.points.dtype == np.float32
+    assert np.abs(got.points - want).max() <= _far_tolerance(offset, scale)
+    np.testing.assert_allclose(got.points.astype(np.float64) * got.scale + got.center, moved,
+                               atol=_far_tolerance(offset, scale) * got.scale * 2)
+
+
+@pytest.mark.parametrize("offset,scale", [((5e5, 4e6, 100), 1.0), ((1e7, -1e7, 3e6), 1e-2), ((0, 0, 0), 1e-6),
+                                          ((-2e6, 0, 7e6), 1e6)])
+def test_a_mesh_in_map_coordinates_samples_the_same_normalised_shape(tmp_path, offset, scale):
+    mesh = make_shape("chair", 2, n_points=64).mesh()
+    unit = _write_obj(tmp_path / "unit.obj", mesh.vertices, mesh.faces)
+    far = _write_obj(tmp_path / "far.obj", mesh.vertices * scale + np.asarray(offset), mesh.faces)
+    a, b = io.load_point_cloud(unit, 2048, seed=3), io.load_point_cloud(far, 2048, seed=3)
+    assert len(np.unique(b.points[:, 1])) > 1000  # not a handful of float32 values
+    assert np.abs(a.points - b.points).max() <= _far_tolerance(offset, scale)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".txt", ".xyz", ".pts"])
+@pytest.mark.parametrize("row", ["extra", "missing"])
+def test_text_rows_of_the_wrong_length_are_refused_in_every_text_format(tmp_path, chair, suffix, row):
+    table = np.concatenate([chair.points[:200], chair.normals[:200]], axis=1)
+    lines = [" ".join(f"{v:.6f}" for v in r) for r in table]
+    lines[40] += " 0.5" if row == "extra" else ""
+    if row == "missing":
+        lines[41] = lines[41].rsplit(" ", 1)[0]
+    if suffix == ".ply":
+        header = ["ply", "format ascii 1.0", "element vertex 200"]
+        header += [f"property float {n}" for n in ("x", "y", "z", "nx", "ny", "nz")] + ["end_header"]
+        lines = header + lines
+    path = tmp_path / f"rows{suffix}"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"rows?.*(do not hold the 6 values|different numbers of columns)"):
+        io.read_point_cloud(path)
+    if suffix == ".ply":  # one extra and one missing value cancel out in the count: still refused, and located
+        lines[-160] += " 0.5"
+        lines[-150] = lines[-150].rsplit(" ", 1)[0]
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(ValueError, match="first: line"):
+            io.read_point_cloud(path)
+
+
+@pytest.mark.parametrize("colours", ["unit", "byte"])
+@pytest.mark.parametrize("suffix", [".xyz", ".txt", ".npy"])
+def test_colour_columns_never_pass_as_normals(tmp_path, chair, colours, suffix):
+    rng = np.random.default_rng(0)
+    rgb = rng.random((len(chair.points), 3)) if colours == "unit" else rng.integers(0, 256, (len(chair.points), 3))
+    table = np.concatenate([chair.points, rgb], axis=1)
+    path = tmp_path / f"rgb{suffix}"
+    np.save(path, table) if suffix == ".npy" else np.savetxt(path, table)
+    with pytest.warns(UserWarning, match=r"columns 4-6 hold .*RGB colours.*normals='file'"):
+        pc = io.read_point_cloud(path)
+    assert pc.normals is None
+    with pytest.warns(UserWarning, match="RGB colours"):
+        loaded = io.load_point_cloud(path)
+    assert np.abs(np.linalg.norm(loaded.normals, axis=1) - 1).max() < 1e-5  # estimated
+    assert io.read_point_cloud(path, normals="file").normals is not None  # the user says so
+    np.savetxt(tmp_path / "n.xyz", np.concatenate([chair.points, chair.normals], axis=1))
+    np.testing.assert_allclose(io.read_point_cloud(tmp_path / "n.xyz").normals, chair.normals, atol=1e-6)
+
+
+def test_a_tiny_shape_is_a_shape_and_identical_points_are_named_as_such():
+    unit = torch.rand(50, 3, dtype=torch.float64)
+    for size in (1e-30, 1e-6, 1e30):
+        q, _, scale = normalize(unit * size)
+        assert float(scale) == pytest.approx(size * float((unit.amax(0) - unit.amin(0)).norm()))
+    with pytest.raises(ValueError, match="all identical: the bounding box has zero size"):
+        normalize(torch.ones(5, 3) * 1e-30)
+    with pytest.raises(ValueError, match="all identical to float64 precision.*subtract a nearby origin"):
+        normalize(unit * 1e-9 + 1e6)
+
+
+# ------------------------------------------------------------------------------ files: nothing of the user's overwritten
+
+SAMPLE_MESH = Path(__file__).resolve().parents[1] / "data_samples" / "meshes" / "table_0.ply"
+FAST_FIT = ["--steps", "2", "--cuboids", "3", "--points", "128", "--quiet"]
+
+
+def test_no_output_is_an_input_or_lies_inside_one(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["fit", str(SAMPLE_MESH), "--out", str(out), *FAST_FIT]) == 0
+    shape = out / "table_0_segmentation.ply"
+    before = shape.read_bytes()
+    # --overwrite would remove the run's files, the input among them, before reading it
+    assert main(["fit", str(shape), "--out", str(out), "--overwrite", *FAST_FIT]) == 2
+    err = capsys.readouterr().err
+    assert "is the input" in err and "table_0_segmentation.ply" in err
+    assert shape.read_bytes() == before
+    # an output folder inside (or equal to) an input folder
+    data = tmp_path / "data"
+    data.mkdir()
+    io.write_point_cloud(data / "a.ply", make_shape("chair", 0, n_points=256).points)
+    for target in (data, data / "results"):
+        assert main(["fit", str(data), "--out", str(target), *FAST_FIT]) == 2
+        assert "--out" in capsys.readouterr().err
+    assert sorted(p.name for p in data.iterdir()) == ["a.ply"]
+    # view: the page may not be a result (or its points), and must be HTML
+    result = out / "table_0.json"
+    text = result.read_text()
+    for page, message in ((result, "must be an .html file"), (out / "view.htm", None)):
+        code = main(["view", str(result), "--out", str(page), "--quiet"])
+        if message:
+            assert code == 2 and message in capsys.readouterr().err
+    assert result.read_text() == text
+    (out / "table_0_segmentation.html").symlink_to(result)
+    assert main(["view", str(result), "--out", str(out / "table_0_segmentation.html"), "--quiet"]) == 2
+    assert "is the input" in capsys.readouterr().err and result.read_text() == text
+
+
+def test_result_file_names_are_unique_not_only_their_stems(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    chair, table = make_shape("chair", 0, n_points=256), make_shape("table", 0, n_points=256)
+    io.write_point_cloud(data / "a.ply", chair.points)
+    io.write_point_cloud(data / "a_segmentation.ply", table.points)
+    out = tmp_path / "out"
+    assert main(["fit", str(data / "a.ply"), str(data / "a_segmentation.ply"), "--out", str(out),
+                 "--mesh-format", "ply", *FAST_FIT]) == 0
+    results = {p.name: json.loads(p.read_text()) for p in out.glob("*.json") if p.name != "cuboidlib-manifest.json"}
+    assert len(results) == 2
+    points = [r["points_file"] for r in results.values()]
+    assert len(set(points)) == 2
+    for r in results.values():  # every result's points are its own shape's
+        mine = io.read_point_cloud(out / r["points_file"]).points
+        source = io.read_point_cloud(data / r["source"]).points
+        nearest = np.linalg.norm(mine[:, None] - source[None], axis=-1).min(axis=1)
+        assert nearest.max() < 1e-4, r["source"]
+    written = json.loads((out / "cuboidlib-manifest.json").read_text())["files"]
+    assert len(written) == len(set(written)) == 2 * 3 + 1  # json, ply mesh, segmentation per shape; summary
+
+
+def test_a_new_training_run_never_overwrites_files_or_writes_through_links(tmp_path):
+    from cuboidlib.train import Trainer, course_config
+
+    config = course_config("chair", n_shapes=8, n_points=64, batch_size=4, max_steps=1, max_minutes=None)
+    outside = tmp_path / "outside.csv"
+    outside.write_text("precious")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text('{"mine": true}')
+    (run / "log.csv").symlink_to(outside)
+    with pytest.raises(FileExistsError, match=r"config.json, log.csv .*symbolic link"):
+        Trainer(config, run, quiet=True)
+    assert (run / "config.json").read_text() == '{"mine": true}' and outside.read_text() == "precious"
+    (run / "config.json").unlink()
+    with pytest.raises(FileExistsError, match="log.csv"):
+        Trainer(config, run, quiet=True)
+    (run / "log.csv").unlink()
+    trainer = Trainer(config, run, quiet=True)
+    (run / "log.csv").unlink()
+    (run / "log.csv").symlink_to(outside)  # a link put there while the run goes
+    with pytest.raises(OSError, match="not a symbolic link"):
+        trainer.log.write(0, 0, "train", {}, 0.0)
+    assert outside.read_text() == "precious"
+    again = tmp_path / "again"
+    Trainer(config, again, quiet=True)  # the same run started again before its first checkpoint is accepted
+    Trainer(config, again, quiet=True)
+    with pytest.raises(FileExistsError, match="config.json"):
+        Trainer(config.replace(seed=config.seed + 1), again, quiet=True)
+
+
+def test_written_files_get_the_users_umask(tmp_path):
+    from cuboidlib.files import write_text_atomic
+
+    old = os.umask(0o027)
+    try:
+        path = write_text_atomic(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert (path.stat().st_mode & 0o777) == 0o640
+
+
+def test_obj_faces_counting_from_zero_are_refused_not_shifted(tmp_path):
+    vertices = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    (tmp_path / "zero.obj").write_text(vertices + "f 0 1 2\nf 0 2 3\nf 0 3 1\nf 1 3 2\n")
+    with pytest.raises(ValueError, match=r"zero.obj: line 5 \('f 0 1 2'\) refers to vertex 0.*start at 1"):
+        io.load_mesh_as_point_cloud(tmp_path / "zero.obj", 10)
+    (tmp_path / "slashes.obj").write_text(vertices + "vt 0 0\nf 1/1 2/1 3/1\nf 1//1 3//1 4//1\nf 10 2 4\n")
+    with pytest.raises(ValueError, match="unreadable mesh"):  # out of range, named by the reader
+        io.load_mesh_as_point_cloud(tmp_path / "slashes.obj", 10)
+    (tmp_path / "good.obj").write_text(vertices + "f 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
+    assert len(io.load_mesh_as_point_cloud(tmp_path / "good.obj", 10)) == 10
+
+
+@pytest.mark.parametrize("with_manifest", [True, False])
+def test_a_data_folder_never_reads_cuboidlibs_own_results_as_shapes(tmp_path, with_manifest):
+    import shutil
+    import warnings
+
+    from cuboidlib.dataset import DataConfig, load_shapes
+
+    data = tmp_path / "data"
+    data.mkdir()
+    for k in range(3):
+        shape = make_shape("chair", k, n_points=256)
+        io.write_point_cloud(data / f"s{k}.ply", shape.points, shape.normals, shape.labels)
+    out = tmp_path / "out"
+    assert main(["fit", str(data), "--out", str(out), "--mesh-format", "glb,obj", *FAST_FIT]) == 0
+    for f in out.iterdir():
+        if with_manifest or f.name != "cuboidlib-manifest.json":
+            shutil.copy(f, data / f.name)
+    with pytest.warns(UserWarning, match=r"file\(s\) below it are cuboidlib results"):
+        shapes = load_shapes(DataConfig(data_dir=str(data), n_points=128))
+    assert len(shapes) == 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        (data / "cuboidlib-manifest.json").unlink(missing_ok=True)
+        for f in data.iterdir():
+            if not f.name.startswith("s") or "_" in f.name or f.suffix != ".ply":
+                f.unlink()
+        assert len(load_shapes(DataConfig(data_dir=str(data), n_points=128))) == 3
+
+
+# ------------------------------------------------------------------------------ sizes: one limit, checked first
+
+
+def test_every_path_that_samples_or_allocates_checks_one_size_limit_first(tmp_path, capsys):
+    from cuboidlib._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES
+    from cuboidlib.dataset import DataConfig
+    from cuboidlib.train import TrainConfig
+
+    too_many = f"above the limit of {MAX_SHAPE_POINTS:,}"
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=too_many):
+        io.load_mesh_as_point_cloud(SAMPLE_MESH, 10**9)
+    with pytest.raises(ValueError, match=too_many):
+        io.load_point_cloud(SAMPLE_MESH, 3_000_000)
+    with pytest.raises(ValueError, match="positive number of points, got -5"):
+        io.load_mesh_as_point_cloud(SAMPLE_MESH, -5)
+    with pytest.raises(ValueError, match=too_many):
+        make_shape("chair", 0, n_points=10**9)
+    with pytest.raises(ValueError, match=f"above the limit of {MAX_SHAPES:,}"):
+        make_collection("chair", 10**9, 16, use_cache=False)
+    with pytest.raises(ValueError, match=f"above the limit of {MAX_COLLECTION_POINTS:,}"):
+        make_collection("chair", MAX_SHAPES, MAX_SHAPE_POINTS, use_cache=False)
+    for field, value in (("n_points", 10**9), ("n_shapes", 10**9)):
+        with pytest.raises(ValueError, match=f"TrainConfig.{field} is 1,000,000,000"):
+            TrainConfig(**{field: value})
+    with pytest.raises(ValueError, match=r"split_fractions\[1\] must be a finite number"):
+        DataConfig(split_fractions=(0.7, "0.1", 0.2))
+    TrainConfig(n_shapes=2000, n_points=4096)  # the paper's scale
+    assert main(["fit", str(SAMPLE_MESH), "--points", "1000000000", "--out", str(tmp_path / "o")]) == 2
+    assert too_many in capsys.readouterr().err
+    assert main(["generate", "--model", "chair", "--count", "100000000", "--out", str(tmp_path / "g")]) == 2
+    assert f"above the limit of {MAX_SHAPES:,}" in capsys.readouterr().err
+    assert time.perf_counter() - start < 30  # refused before any work
+
+
+def test_an_output_folder_is_locked_while_a_run_writes_into_it(tmp_path, capsys):
+    from cuboidlib.files import LOCK_FILE
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / LOCK_FILE).write_text(f"{os.getppid()}\n")  # a running process holds it
+    assert main(["fit", str(SAMPLE_MESH), "--out", str(out), *FAST_FIT]) == 2
+    err = capsys.readouterr().err
+    assert f"another cuboidlib run (process {os.getppid()}) is writing there" in err
+    assert sorted(p.name for p in out.iterdir()) == [LOCK_FILE]
+    (out / LOCK_FILE).write_text("999999999\n")  # left by a run that has ended
+    assert main(["fit", str(SAMPLE_MESH), "--out", str(out), *FAST_FIT]) == 0
+    assert not (out / LOCK_FILE).exists() and (out / "table_0.json").is_file()
+    assert main(["fit", str(tmp_path / "missing.ply"), "--out", str(tmp_path / "new"), *FAST_FIT]) == 2
+    assert not (tmp_path / "new").exists()  # a run that wrote nothing leaves no folder
+
+
+def _glb(doc: dict, binary: bytes) -> bytes:
+    import struct
+
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", len(binary), b"BIN\x00") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def test_damaged_glb_files_and_checkpoints_are_named_clearly(tmp_path):
+    import trimesh as tm
+
+    good = tm.creation.box().export(file_type="glb")
+    length = int.from_bytes(good[12:16], "little")
+    doc, binary = json.loads(good[20:20 + length]), good[20 + length + 8:]
+    doc["buffers"][0]["byteLength"] = 2**40
+    (tmp_path / "huge.glb").write_bytes(_glb(doc, binary))
+    with pytest.raises(ValueError, match=r"huge.glb: unreadable mesh: GLB buffer 0 claims 1099511627776 bytes"):
+        io.load_mesh_as_point_cloud(tmp_path / "huge.glb", 10)
+    (tmp_path / "empty.glb").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.glb: unreadable mesh: an empty or truncated GLB"):
+        io.load_mesh_as_point_cloud(tmp_path / "empty.glb", 10)
+    (tmp_path / "cut.glb").write_bytes(good[:-7])
+    with pytest.raises(ValueError, match="cut.glb: unreadable mesh: the GLB header declares"):
+        io.load_mesh_as_point_cloud(tmp_path / "cut.glb", 10)
+    state = torch.load(CHECKPOINTS / "chair.pt", weights_only=True)
+    bad = dict(state, format_version="2")
+    torch.save(bad, tmp_path / "v.pt")
+    with pytest.raises(ValueError, match="format_version must be a whole number >= 1, got '2'"):
+        load_checkpoint(tmp_path / "v.pt")
+    weights = dict(state["model"])
+    name = next(k for k, v in weights.items() if v.is_floating_point())
+    weights[name] = weights[name].clone().fill_(float("nan"))
+    torch.save(dict(state, model=weights), tmp_path / "nan.pt")
+    with pytest.raises(ValueError, match=rf"nan.pt: the checkpoint's weights hold NaN.*{name}.*not your input"):
+        load_model(tmp_path / "nan.pt")
+
+
+def test_an_interrupted_training_says_where_resume_continues(tmp_path, monkeypatch, capsys):
+    import cuboidlib.cli
+    from cuboidlib.checkpoint import save_checkpoint
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cuboidlib.cli, "_cmd_train", interrupted)
+    out = tmp_path / "run"
+    assert main(["train", "--out", str(out)]) == 130
+    assert "no checkpoint was written" in capsys.readouterr().err
+    save_checkpoint(out / "last.pt", {"model": {}}, {}, step=7)
+    assert main(["train", "--out", str(out)]) == 130
+    assert "--resume continues from step 7" in capsys.readouterr().err
+
+
+def test_a_checkpoint_never_chooses_a_folder_to_read(tmp_path, capsys):
+    state = torch.load(CHECKPOINTS / "chair.pt", weights_only=True)
+    torch.save(dict(state, config={**state["config"], "data_dir": "/usr"}), tmp_path / "usr.pt")
+    start = time.perf_counter()
+    assert main(["evaluate", str(tmp_path / "usr.pt")]) == 2
+    err = capsys.readouterr().err
+    assert "trained on the data folder /usr" in err and "--data-dir /usr" in err
+    assert time.perf_counter() - start < 20  # refused, not scanned

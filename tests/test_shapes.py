@@ -180,7 +180,7 @@ def test_bad_arguments():
         make_shape("chair", 0, n_points=0)
     with pytest.raises(ValueError, match="non-negative"):
         make_shape("chair", 0, seed=-1)
-    with pytest.raises(ValueError, match="n_shapes and n_points"):
+    with pytest.raises(ValueError, match="n_shapes must be a positive number of shapes, got 0"):
         make_collection("chair", 0, use_cache=False)
     with pytest.raises(FileNotFoundError, match="no such collection"):
         ShapeCollection.load("/nonexistent/c.npz")
