@@ -344,17 +344,7 @@ class Trainer:
         self.out_dir = Path(out_dir)
         self.quiet = quiet
         self.dist = Distributed()
-        self.device = resolve_device(config.device)
-        if self.device.type == "cuda" and self.dist.enabled:
-            self.device = torch.device("cuda", self.dist.local_rank)
-            torch.cuda.set_device(self.device)
-        self.core_share = CoreShare() if config.num_threads == "auto" and self.device.type == "cpu" else None
-        if isinstance(config.num_threads, int):
-            torch.set_num_threads(config.num_threads)
-        if config.compiled_kernels is True:
-            kernels.enable()
-        elif config.compiled_kernels is False:
-            kernels.disable()
+        self._set_up_compute(config)
         if config.batch_size % self.dist.world_size:
             raise ValueError(
                 f"batch_size {config.batch_size} must be divisible by the number of processes {self.dist.world_size}"
@@ -414,6 +404,20 @@ class Trainer:
         if self.dist.is_main:
             config.save_json(self.out_dir / "config.json")
         self.log = RunLog(self.out_dir / "log.csv", LOG_FIELDS, self.step if resume else None, self.dist.is_main)
+
+    def _set_up_compute(self, config: TrainConfig) -> None:
+        """This process's device, thread count (fixed, or following the free cores) and compiled kernels."""
+        self.device = resolve_device(config.device)
+        if self.device.type == "cuda" and self.dist.enabled:
+            self.device = torch.device("cuda", self.dist.local_rank)
+            torch.cuda.set_device(self.device)
+        self.core_share = CoreShare() if config.num_threads == "auto" and self.device.type == "cpu" else None
+        if isinstance(config.num_threads, int):
+            torch.set_num_threads(config.num_threads)
+        if config.compiled_kernels is True:
+            kernels.enable()
+        elif config.compiled_kernels is False:
+            kernels.disable()
 
     # ------------------------------------------------------------------------------ state
 
