@@ -44,6 +44,9 @@ REFINE_LR = 0.003
 #: Steps of the final phase of a refinement on the two-sided distance (:func:`cuboidlib.fitting.tighten_cuboids`).
 TIGHTEN_STEPS = 150
 
+#: Steps of the same final phase after the per-shape fit of ``abstract(shape, None)`` (0: none).
+FIT_TIGHTEN_STEPS = 150
+
 #: ``abstract(shape, model)`` without ``up`` warns when another up axis gives the network's cuboids a
 #: Chamfer distance below this fraction of the +y-up one (measured by ``experiments/orientation_check.py``).
 ORIENTATION_RATIO = 0.5
@@ -272,7 +275,15 @@ def _by_fitting(pc, up, front, fit_config, part_names, source, seed, progress) -
     method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": config.num_cuboids,
               "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
               "converged": bool(fit.converged[0])}
-    return _result(pc, fit.cuboids, fit.labels[0].cpu(), points, rotation, up, front, method, part_names, source,
+    cuboids = fit.cuboids
+    if FIT_TIGHTEN_STEPS:  # the final phase on the two-sided distance, kept only when it lowers it
+        tight = tighten_cuboids(torch.as_tensor(points, dtype=cuboids.centers.dtype)[None], cuboids,
+                                FIT_TIGHTEN_STEPS, seed=seed)
+        convention = ChamferConvention()
+        before, after = (float(_chamfer(points[None], c, seed, convention)[0]) for c in (cuboids, tight))
+        method["tighten"] = {"steps": FIT_TIGHTEN_STEPS, "chamfer": {"fit": round(before, 7), "tightened": round(after, 7)}}
+        cuboids = tight if after < before else cuboids
+    return _result(pc, cuboids, fit.labels[0].cpu(), points, rotation, up, front, method, part_names, source,
                    seed)
 
 

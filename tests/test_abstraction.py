@@ -71,6 +71,8 @@ def test_without_a_model_the_shape_is_fitted_alone():
     assert result.method["name"] == "fit" and result.method["steps"] == 40
     assert 2 <= result.num_existing <= 16 and result.chamfer < 0.02
     assert result.normals is not None  # estimated, since the array had none
+    tighten = result.method["tighten"]
+    assert tighten["steps"] > 0 and result.chamfer == pytest.approx(min(tighten["chamfer"].values()), abs=1e-6)
 
 
 def test_dict_round_trip_and_arrays(table_cloud):
