@@ -53,9 +53,11 @@ ORIENTATION_RATIO = 0.5
 
 #: ``abstract(shape, model)`` compares the network's Chamfer distance with that of k-means boxes
 #: (:func:`cuboidlib.baseline.fit_cluster_boxes`, as many boxes as the network's cuboids, on the same points
-#: and surface samples) and warns (:class:`NetworkFitWarning`) above this ratio (measured by
-#: ``benchmarks/bench_reference_check.py``).
-REFERENCE_RATIO = 1.5
+#: and surface samples) and warns (:class:`NetworkFitWarning`) above this ratio. Measured by
+#: ``benchmarks/bench_reference_check.py --per-split 100 --cross 0``: on the first 100 shapes of each test split
+#: with its own network the ratio's median is 0.38, and 2.0 stays silent on 99.5 % of them (1.8: 99.0 %);
+#: the chair network on 24 table, airplane and animal test shapes scored 2.7 to 20.
+REFERENCE_RATIO = 2.0
 
 #: How the candidate frames of the orientation check and of ``up="auto"`` are scored: the Chamfer
 #: distance with 512 surface samples against at most FRAME_SCORE_POINTS of the input's points, evenly
