@@ -310,6 +310,8 @@ def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monk
     assert code == 0, capsys.readouterr().err
     _, meta = read_cuboids_json(tmp_path / "refined" / "chair_1.json")
     assert meta["method"]["refine"]["steps"] == 20
+    assert "warning: chair_1.ply: the network's cuboids reconstruct it" in capsys.readouterr().err, \
+        "the few-step test network does not fit the chair, and the check says so"
     code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "table", "--out",
                  str(tmp_path / "out2")])
     assert code == 2
