@@ -18,6 +18,7 @@ Example::
 
     python benchmarks/bench_real_shapes.py
     python benchmarks/bench_real_shapes.py --only insect_0 airplane_0 --refine 300
+    python benchmarks/bench_real_shapes.py --fit-only
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ def main() -> None:
     parser.add_argument("--refine", type=int, default=300, help="refinement steps (default 300)")
     parser.add_argument("--seeds", type=int, default=5, help="k-means seeds, the best kept (default 5)")
     parser.add_argument("--only", nargs="*", default=None, help="these shapes only (names as printed)")
+    parser.add_argument("--fit-only", action="store_true", help="k-means and the fit only (no network)")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     shapes: dict[str, tuple[object, str]] = {}
@@ -84,6 +86,11 @@ def main() -> None:
         net = nets[model]
         fit, fit_s = _timed(lambda: abstract(shape, None, n_points=2048, seed=0))
         km = kmeans_chamfer(fit.points, fit.normals, fit.num_existing, args.seeds)
+        if args.fit_only:
+            rows.append((name, km, fit.chamfer, np.nan, np.nan, np.nan))
+            print(f"{name:12s} {'-':8s} | {km * 1e3:7.3f} {fit.chamfer * 1e3:7.3f} {fit.num_existing:3d} {fit_s:5.1f} |",
+                  flush=True)
+            continue
         out, net_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y"))
         ref, ref_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y", refine=args.refine))
         km_net = kmeans_chamfer(out.points, out.normals, out.num_existing, args.seeds)

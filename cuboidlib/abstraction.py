@@ -44,8 +44,10 @@ REFINE_LR = 0.003
 #: Steps of the final phase of a refinement on the two-sided distance (:func:`cuboidlib.fitting.tighten_cuboids`).
 TIGHTEN_STEPS = 150
 
-#: Steps of the same final phase after the per-shape fit of ``abstract(shape, None)`` (0: none).
-FIT_TIGHTEN_STEPS = 150
+#: Steps of the same final phase after the per-shape fit of ``abstract(shape, None)`` (0: none), each on
+#: FIT_TIGHTEN_POINTS points and as many surface samples, so that the default fit stays within a few seconds.
+FIT_TIGHTEN_STEPS = 100
+FIT_TIGHTEN_POINTS = 1024
 
 #: ``abstract(shape, model)`` without ``up`` warns when another up axis gives the network's cuboids a
 #: Chamfer distance below this fraction of the +y-up one (measured by ``experiments/orientation_check.py``).
@@ -280,7 +282,7 @@ def _by_fitting(pc, up, front, fit_config, part_names, source, seed, progress) -
     cuboids = fit.cuboids
     if FIT_TIGHTEN_STEPS:  # the final phase on the two-sided distance, kept only when it lowers it
         tight = tighten_cuboids(torch.as_tensor(points, dtype=cuboids.centers.dtype)[None], cuboids,
-                                FIT_TIGHTEN_STEPS, seed=seed)
+                                FIT_TIGHTEN_STEPS, n_samples=FIT_TIGHTEN_POINTS, seed=seed, n_points=FIT_TIGHTEN_POINTS)
         convention = ChamferConvention()
         before, after = (float(_chamfer(points[None], c, seed, convention)[0]) for c in (cuboids, tight))
         method["tighten"] = {"steps": FIT_TIGHTEN_STEPS, "chamfer": {"fit": round(before, 7), "tightened": round(after, 7)}}

@@ -463,7 +463,7 @@ def _optimise(p: torch.Tensor, nrm: torch.Tensor, config: FitConfig, progress: b
 
 
 def tighten_cuboids(points, cuboids: Cuboids, steps: int = 150, lr: float = 0.003, n_samples: int = 2048,
-                    seed: int = 0) -> Cuboids:
+                    seed: int = 0, n_points: int | None = None) -> Cuboids:
     """A final phase on the two-sided distance: Adam on the existing cuboids' centres, rotations and sizes,
     minimising the squared-L2 Chamfer distance between the points and fresh surface samples of the cuboids
     at every step (the distance a user sees, not Eq. (4)). The slots, and which of them exist, are kept.
@@ -480,7 +480,9 @@ def tighten_cuboids(points, cuboids: Cuboids, steps: int = 150, lr: float = 0.00
         steps: Adam steps (0 returns the cuboids unchanged).
         lr: learning rate of centres and half sizes in units of the diagonal, and of the free quaternions.
         n_samples: surface samples per step.
-        seed: seed of the surface samples.
+        seed: seed of the surface samples (and of the point subsets).
+        n_points: at most this many of the N points, drawn afresh at every step (None: all of them); fewer
+            make each step cheaper (the nearest-neighbour search costs N x n_samples).
 
     Returns:
         The tightened :class:`~cuboidlib.geometry.Cuboids`, (B, M) slots as given, on the points' device.
@@ -492,16 +494,19 @@ def tighten_cuboids(points, cuboids: Cuboids, steps: int = 150, lr: float = 0.00
         raise TypeError(f"cuboids must be a Cuboids, got {type(cuboids).__name__}")
     if cuboids.centers.shape[0] != p.shape[0]:
         raise ValueError(f"cuboids hold {cuboids.centers.shape[0]} shape(s) but points holds {p.shape[0]}")
+    if n_points is not None and (isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 1):
+        raise ValueError(f"n_points must be a positive integer or None, got {n_points!r}")
     for name, value in (("steps", steps), ("n_samples", n_samples), ("seed", seed)):
         if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "n_samples" else 0):
             raise ValueError(f"{name} must be a {'positive' if name == 'n_samples' else 'non-negative'} integer, "
                              f"got {value!r}")
     if not (isinstance(lr, (int, float)) and math.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be a finite positive number, got {lr!r}")
-    return _tighten(p, cuboids, steps, lr, n_samples, seed)
+    return _tighten(p, cuboids, steps, lr, n_samples, seed, n_points)
 
 
-def _tighten(p: torch.Tensor, cuboids: Cuboids, steps: int, lr: float, n_samples: int, seed: int) -> Cuboids:
+def _tighten(p: torch.Tensor, cuboids: Cuboids, steps: int, lr: float, n_samples: int, seed: int,
+             n_points: int | None = None) -> Cuboids:
     """:func:`tighten_cuboids` after its checks."""
     like = dict(dtype=p.dtype, device=p.device)
     exists = None if cuboids.exists is None else cuboids.exists.to(p.device)
@@ -517,12 +522,15 @@ def _tighten(p: torch.Tensor, cuboids: Cuboids, steps: int, lr: float, n_samples
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda k: 1.0 - k / steps)
     generator = torch.Generator(device=p.device).manual_seed(seed)
     for _ in range(steps):
+        subset = q
+        if n_points is not None and n_points < q.shape[1]:
+            subset = q[:, torch.randperm(q.shape[1], generator=generator, device=p.device)[:n_points]]
         quaternions = quat_raw / torch.linalg.vector_norm(quat_raw, dim=-1, keepdim=True)
         samples = sample_cuboid_surfaces(centers, quaternions, log_sizes.exp(), n_samples, exists=exists,
                                          generator=generator, validate=False).points  # (B, n, 3)
-        to_samples, to_points = nearest_indices(q, samples.detach())
-        forward = (q - torch.gather(samples, 1, to_samples[..., None].expand(-1, -1, 3))).square().sum(-1).mean(1)
-        backward = (samples - torch.gather(q, 1, to_points[..., None].expand(-1, -1, 3))).square().sum(-1).mean(1)
+        to_samples, to_points = nearest_indices(subset, samples.detach())
+        forward = (subset - torch.gather(samples, 1, to_samples[..., None].expand(-1, -1, 3))).square().sum(-1).mean(1)
+        backward = (samples - torch.gather(subset, 1, to_points[..., None].expand(-1, -1, 3))).square().sum(-1).mean(1)
         optimizer.zero_grad(set_to_none=True)
         (forward + backward).sum().backward()
         optimizer.step()

@@ -430,6 +430,9 @@ def test_tightening_on_the_two_sided_distance_lowers_the_chamfer_distance_and_ke
         tighten_cuboids(p, loose, steps=-1)
     with pytest.raises(ValueError, match="cuboids hold 1 shape"):
         tighten_cuboids(p.repeat(2, 1, 1), loose)
+    assert chamfer(tighten_cuboids(p, loose, steps=80, n_samples=512, n_points=512)) < 0.8 * chamfer(loose)
+    with pytest.raises(ValueError, match="n_points must be a positive integer or None"):
+        tighten_cuboids(p, loose, n_points=0)
     with pytest.raises(TypeError, match="cuboids must be a Cuboids"):
         tighten_cuboids(p, "boxes")
     assert len(thin_structure_set(n_points=64)) == len(THIN_KINDS) * THIN_PER_KIND
