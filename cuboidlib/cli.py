@@ -663,6 +663,11 @@ def _report(args, result, written: list, seconds: float) -> None:
         print(f"warning: {result.source or 'the shape'} looks like it is not +y up: with --up {up} the network "
               f"reconstructs it {scores['y'] / scores[up]:.1f}x better; pass --up {up} (or --up auto), or --up y "
               "if it is upright", file=sys.stderr)
+    ref = (result.method or {}).get("reference_check", {})
+    if ref.get("warned"):
+        print(f"warning: {result.source or 'the shape'}: the network's cuboids reconstruct it {ref['ratio']:.1f}x worse "
+              f"than k-means boxes with as many boxes ({ref['kmeans_boxes']}); this network does not fit the shape, "
+              "`cuboidlib fit` (model=None) fits it without one", file=sys.stderr)
     if args.quiet:
         return
     chosen = (result.method or {}).get("up_auto", {}).get("chosen")
@@ -755,9 +760,10 @@ def _add_abstract_command(sub) -> None:
 
 def _cmd_abstract(args) -> int:
     def prepare():
-        from .abstraction import OrientationWarning, abstract  # imports torch: start-up time
+        from .abstraction import NetworkFitWarning, OrientationWarning, abstract  # imports torch: start-up time
 
         warnings.simplefilter("ignore", OrientationWarning)  # _report prints it, without a source line
+        warnings.simplefilter("ignore", NetworkFitWarning)  # _report prints it too
 
         def one(path: str, progress: bool):
             return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,

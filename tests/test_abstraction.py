@@ -71,6 +71,8 @@ def test_without_a_model_the_shape_is_fitted_alone():
     assert result.method["name"] == "fit" and result.method["steps"] == 40
     assert 2 <= result.num_existing <= 16 and result.chamfer < 0.02
     assert result.normals is not None  # estimated, since the array had none
+    tighten = result.method["tighten"]
+    assert tighten["steps"] > 0 and result.chamfer == pytest.approx(min(tighten["chamfer"].values()), abs=1e-6)
 
 
 def test_dict_round_trip_and_arrays(table_cloud):
@@ -269,3 +271,49 @@ def test_abstract_and_the_fit_of_one_shape_run_on_one_thread_and_restore_the_cal
         assert seen == [1] and torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_a_refinement_never_returns_a_higher_chamfer_distance_than_the_networks(table_cloud, monkeypatch):
+    import cuboidlib.abstraction as pipeline
+    from cuboidlib.geometry import Cuboids
+
+    path, _ = table_cloud
+    network = cuboidlib.abstract(path, model="table", up="y")
+    refined = cuboidlib.abstract(path, model="table", up="y", refine=60)
+    record = refined.method["refine"]
+    assert record["kept"] == "refined" and record["chamfer"]["network"] == pytest.approx(network.chamfer, abs=1e-6)
+    assert refined.chamfer == pytest.approx(record["chamfer"]["refined"], abs=1e-6) and refined.chamfer < network.chamfer
+
+    def looser(points, cuboids, *args, **kwargs):  # a refinement that makes every cuboid three times larger
+        return Cuboids(cuboids.centers, cuboids.quaternions, 3 * cuboids.half_sizes, cuboids.exists)
+
+    monkeypatch.setattr(pipeline, "tighten_cuboids", looser)
+    kept = cuboidlib.abstract(path, model="table", up="y", refine=60)
+    assert kept.method["refine"]["kept"] == "network" and kept.chamfer == pytest.approx(network.chamfer, abs=1e-9)
+    assert np.array_equal(kept.labels, network.labels), "the start is returned whole, segmentation included"
+
+
+def test_a_network_off_its_category_warns_with_the_figures_and_can_fall_back_to_the_fit():
+    import warnings
+
+    from cuboidlib.abstraction import REFERENCE_RATIO, NetworkFitWarning
+
+    s = make_shape("table", 0, n_points=1024)
+    cloud = np.concatenate([s.points, s.normals], axis=1)
+    with pytest.warns(NetworkFitWarning, match=r"worse than k-means boxes with as many boxes .*model=None") as caught:
+        off = cuboidlib.abstract(cloud, model="chair", up="y")
+    assert caught[0].filename == __file__, "the warning points at the caller's line"
+    check = off.method["reference_check"]
+    assert check["worse"] and check["warned"] and check["ratio"] > REFERENCE_RATIO and check["kmeans_boxes"] == off.num_existing
+    assert check["network_chamfer"] == pytest.approx(off.chamfer, abs=1e-6)
+    with pytest.warns(NetworkFitWarning, match="fell back to the per-shape fit"):
+        fallen = cuboidlib.abstract(cloud, model="chair", up="y", fallback=True)
+    assert fallen.method["name"] == "fit" and fallen.method["fallback"]["reference_check"]["worse"]
+    assert fallen.chamfer < off.chamfer
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NetworkFitWarning)
+        own = cuboidlib.abstract(cloud, model="table", up="y")
+        unchecked = cuboidlib.abstract(cloud, model="chair", up="y", check=False)
+    assert not own.method["reference_check"]["worse"] and "reference_check" not in unchecked.method
+    with pytest.raises(ValueError, match="check and fallback must be True or False"):
+        cuboidlib.abstract(cloud, model="chair", check="yes")

@@ -32,3 +32,13 @@ def test_bench_abstract_prints_the_three_orientation_choices_and_the_threads():
     assert len(ratios) == 3 and ratios[0] == 1.0, proc.stdout
     rows = re.findall(r"1 thread\s+([\d.]+) s, 2 threads\s+([\d.]+) s, default\s+([\d.]+) s", proc.stdout)
     assert len(rows) == 2, proc.stdout
+
+
+def test_bench_real_shapes_prints_every_method_of_a_shape():
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_real_shapes.py"), "--only", "mug_0",
+                           "--refine", "5", "--seeds", "1"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    row = re.search(r"^mug_0\s+table\s+\|((\s+[\d.]+){4})\s+\|((\s+[\d.]+){4})\s+\|((\s+[\d.]+){2})\s+\|\s+[\d.]+$",
+                    proc.stdout, re.M)
+    assert row, proc.stdout
+    assert "thin-structure set: 1 shapes" in proc.stdout, proc.stdout

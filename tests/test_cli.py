@@ -269,6 +269,18 @@ def test_abstract_warns_on_stderr_when_the_input_looks_z_up(tmp_path, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_abstract_warns_on_stderr_when_the_network_does_not_fit_the_shape(tmp_path, capsys):
+    s = make_shape("table", 0, n_points=1024)
+    path = tmp_path / "table.xyz"
+    np.savetxt(path, np.concatenate([s.points, s.normals], axis=1))
+    assert main(["abstract", str(path), "--model", "chair", "--up", "y", "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("warning: table.xyz: the network's cuboids reconstruct it ") and "`cuboidlib fit`" in err
+    assert err.count("\n") == 1, err
+    assert main(["abstract", str(path), "--model", "table", "--up", "y", "--out", str(tmp_path / "own"), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_up_auto_says_which_frame_it_chose(tmp_path, capsys):
     # at the network's own density (its 1024 training points, the default): with 256 points the upright chair
     # was reconstructed better upside down, so the choice is only as good as the network on that input
@@ -298,6 +310,8 @@ def test_abstract_accepts_a_committed_checkpoint_name(tmp_path, checkpoint, monk
     assert code == 0, capsys.readouterr().err
     _, meta = read_cuboids_json(tmp_path / "refined" / "chair_1.json")
     assert meta["method"]["refine"]["steps"] == 20
+    assert "warning: chair_1.ply: the network's cuboids reconstruct it" in capsys.readouterr().err, \
+        "the few-step test network does not fit the chair, and the check says so"
     code = main(["abstract", str(SAMPLES / "points" / "chair_1.ply"), "--model", "table", "--out",
                  str(tmp_path / "out2")])
     assert code == 2

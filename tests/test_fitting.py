@@ -408,3 +408,33 @@ def test_fit_config_builds_on_the_loss_config_and_refuses_what_only_a_network_us
         FitConfig(loss={"distance": "chamfer"})
     with pytest.raises(ValueError, match="allocation"):
         FitConfig(loss={"allocation": "soft"})
+
+
+def test_tightening_on_the_two_sided_distance_lowers_the_chamfer_distance_and_keeps_the_slots():
+    from cuboidlib.fitting import tighten_cuboids
+    from cuboidlib.thin_shapes import THIN_KINDS, THIN_PER_KIND, thin_shape, thin_structure_set
+
+    points, _ = thin_shape("ladder", 0, n_points=1024)
+    assert np.array_equal(points, thin_shape("ladder", 0, n_points=1024)[0]), "the set is fixed"
+    p = torch.as_tensor(points)[None]
+    start = fit_cuboids(p, torch.as_tensor(thin_shape("ladder", 0, n_points=1024)[1])[None], FitConfig(steps=60)).cuboids
+    loose = Cuboids(start.centers, start.quaternions, 1.3 * start.half_sizes, start.exists)
+    tight = tighten_cuboids(p, loose, steps=80)
+    chamfer = lambda c: float(cuboid_chamfer_distance(p, c.centers, c.quaternions, c.half_sizes, c.exists,  # noqa: E731
+                                                      generator=torch.Generator().manual_seed(0))[0])
+    assert chamfer(tight) < 0.8 * chamfer(loose)
+    assert torch.equal(tight.exists, loose.exists) and tight.centers.shape == loose.centers.shape
+    same = tighten_cuboids(p, loose, steps=0)
+    assert torch.equal(same.half_sizes, loose.half_sizes)
+    with pytest.raises(ValueError, match="steps must be a non-negative integer"):
+        tighten_cuboids(p, loose, steps=-1)
+    with pytest.raises(ValueError, match="cuboids hold 1 shape"):
+        tighten_cuboids(p.repeat(2, 1, 1), loose)
+    assert chamfer(tighten_cuboids(p, loose, steps=80, n_samples=512, n_points=512)) < 0.8 * chamfer(loose)
+    with pytest.raises(ValueError, match="n_points must be a positive integer or None"):
+        tighten_cuboids(p, loose, n_points=0)
+    with pytest.raises(TypeError, match="cuboids must be a Cuboids"):
+        tighten_cuboids(p, "boxes")
+    assert len(thin_structure_set(n_points=64)) == len(THIN_KINDS) * THIN_PER_KIND
+    with pytest.raises(ValueError, match="kind must be one of"):
+        thin_shape("teapot")

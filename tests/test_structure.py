@@ -19,7 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "cuboidlib"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__", "_checks", "config", "files", "kernels"),    # plumbing: version, checks, configs, files, C++
     ("neighbors", "geometry", "normalization", "solids"),     # kNN, cuboid geometry, the unit frame, solids
-    ("normals", "distance", "metrics", "shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
+    ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
     ("results", "runs"),                                      # the result types; a run's bookkeeping
