@@ -7,7 +7,7 @@ of ``data_samples/meshes/`` (2048 points sampled by :func:`cuboidlib.abstract`, 
 * ``kmeans``: :func:`cuboidlib.baseline.fit_cluster_boxes` with as many boxes as the fit's cuboids, the
   best of ``--seeds`` seeds (independent of any start the fit takes from k-means);
 * ``fit``: ``abstract(shape, None)`` (the default :class:`~cuboidlib.fitting.FitConfig`);
-* ``net``: ``abstract(shape, model, up="y")``, the network of the mesh's category, or for the thin
+* ``net``: ``abstract(shape, model, up="y", check=True)``, the network of the mesh's category, or for the thin
   shapes the one named in :data:`THIN_NETWORK`; its check's ratio to k-means (``method["reference_check"]``);
 * ``refined``: the same with ``refine=--refine`` steps.
 
@@ -91,7 +91,7 @@ def main() -> None:
             print(f"{name:12s} {'-':8s} | {km * 1e3:7.3f} {fit.chamfer * 1e3:7.3f} {fit.num_existing:3d} {fit_s:5.1f} |",
                   flush=True)
             continue
-        out, net_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y"))
+        out, net_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y", check=True))
         ref, ref_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y", refine=args.refine))
         km_net = kmeans_chamfer(out.points, out.normals, out.num_existing, args.seeds)
         ratio = out.method["reference_check"]["ratio"]

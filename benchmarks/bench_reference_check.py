@@ -49,7 +49,7 @@ def main() -> None:
             for i in range(min(count, len(split.points))):
                 shape = np.concatenate([np.asarray(split.points[i]), np.asarray(split.normals[i])], axis=1)
                 start = time.perf_counter()
-                result = abstract(shape, net, up="y", seed=0)
+                result = abstract(shape, net, up="y", seed=0, check=True)
                 seconds.append(time.perf_counter() - start)
                 ratio = result.method["reference_check"]["ratio"]
                 if shape_cat == net_cat:

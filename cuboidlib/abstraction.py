@@ -383,7 +383,7 @@ def abstract(
     up: str | None = None,
     front: str | None = None,
     refine: int = 0,
-    check: bool = True,
+    check: bool = False,
     fallback: bool = False,
 ) -> Abstraction:
     """Cuboid abstraction and segmentation of one shape, in its own coordinates.
@@ -418,7 +418,8 @@ def abstract(
             cuboids are kept when the refined ones do not have a lower Chamfer distance (recorded in
             ``method["refine"]``): a refinement never makes the result worse.
         check: with a network, compare its Chamfer distance with that of k-means boxes with as many boxes
-            (``method["reference_check"]``) and warn (:class:`NetworkFitWarning`) when it is more than
+            (``method["reference_check"]``; off by default, since it adds k-means to every call, and on in
+            ``cuboidlib abstract``) and warn (:class:`NetworkFitWarning`) when it is more than
             :data:`REFERENCE_RATIO` times worse: the network does not fit this shape (not when the orientation
             warning speaks: a shape on its side is turned upright first).
         fallback: with a network, return the per-shape fit (``model=None``, default FitConfig, same frame)

@@ -768,7 +768,7 @@ def _cmd_abstract(args) -> int:
         def one(path: str, progress: bool):
             return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
                             centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
-                            front=args.front, refine=args.refine, progress=progress)
+                            front=args.front, refine=args.refine, progress=progress, check=True)
 
         return one
 

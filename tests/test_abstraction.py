@@ -301,7 +301,7 @@ def test_a_network_off_its_category_warns_with_the_figures_and_can_fall_back_to_
     s = make_shape("table", 0, n_points=1024)
     cloud = np.concatenate([s.points, s.normals], axis=1)
     with pytest.warns(NetworkFitWarning, match=r"worse than k-means boxes with as many boxes .*model=None") as caught:
-        off = cuboidlib.abstract(cloud, model="chair", up="y")
+        off = cuboidlib.abstract(cloud, model="chair", up="y", check=True)
     assert caught[0].filename == __file__, "the warning points at the caller's line"
     check = off.method["reference_check"]
     assert check["worse"] and check["warned"] and check["ratio"] > REFERENCE_RATIO and check["kmeans_boxes"] == off.num_existing
@@ -312,8 +312,8 @@ def test_a_network_off_its_category_warns_with_the_figures_and_can_fall_back_to_
     assert fallen.chamfer < off.chamfer
     with warnings.catch_warnings():
         warnings.simplefilter("error", NetworkFitWarning)
-        own = cuboidlib.abstract(cloud, model="table", up="y")
-        unchecked = cuboidlib.abstract(cloud, model="chair", up="y", check=False)
+        own = cuboidlib.abstract(cloud, model="table", up="y", check=True)
+        unchecked = cuboidlib.abstract(cloud, model="chair", up="y")
     assert not own.method["reference_check"]["worse"] and "reference_check" not in unchecked.method
     with pytest.raises(ValueError, match="check and fallback must be True or False"):
         cuboidlib.abstract(cloud, model="chair", check="yes")
