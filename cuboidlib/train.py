@@ -107,7 +107,8 @@ class TrainConfig(DataConfig):
         seed: of the initial weights, data order, loss and VAE sampling.
         device: "auto" (CUDA when available, else CPU), "cpu" or "cuda[:i]".
         num_threads: for ``torch.set_num_threads``; None: torch's default; "auto" (the command line's
-            default): the cores other processes leave free (:class:`~cuboidlib.runs.CoreShare`).
+            default): the cores other processes leave free (:class:`~cuboidlib.runs.CoreShare`); under
+            ``torchrun``, an equal share of the cores for each process.
         compiled_kernels: run the CPU hot spots with :mod:`cuboidlib.kernels` (same results, faster);
             None: wherever a C++ compiler can build them; False: never.
     """
@@ -411,7 +412,10 @@ class Trainer:
         if self.device.type == "cuda" and self.dist.enabled:
             self.device = torch.device("cuda", self.dist.local_rank)
             torch.cuda.set_device(self.device)
-        self.core_share = CoreShare() if config.num_threads == "auto" and self.device.type == "cpu" else None
+        follow = config.num_threads == "auto" and self.device.type == "cpu"
+        self.core_share = CoreShare() if follow and not self.dist.enabled else None
+        if follow and self.dist.enabled:  # several processes share the cores: a fixed share each
+            torch.set_num_threads(max(1, (os.cpu_count() or 1) // self.dist.world_size))
         if isinstance(config.num_threads, int):
             torch.set_num_threads(config.num_threads)
         if config.compiled_kernels is True:
