@@ -10,8 +10,9 @@ The public API, in three lines::
     result = cuboidlib.abstract("my_chair.obj", model="chair")   # or model=None: fit this shape alone
     result.save("out")                                           # JSON, GLB and the segmented points
 
-Names offered here (each documented in its module): :func:`abstract`, :class:`Abstraction` and
-:class:`OrientationWarning` (:mod:`cuboidlib.abstraction`), :func:`load_point_cloud` and :class:`PointCloud` (:mod:`cuboidlib.io`),
+Names offered here (each documented in its module): :func:`abstract`, :class:`OrientationWarning` and
+:class:`NetworkFitWarning` (:mod:`cuboidlib.abstraction`), :class:`Abstraction` (:mod:`cuboidlib.results`),
+:func:`load_point_cloud` and :class:`PointCloud` (:mod:`cuboidlib.io`),
 :func:`load_trained_model` (:mod:`cuboidlib.applications`), :class:`Cuboids`
 (:mod:`cuboidlib.geometry`), :func:`fit_cuboids` and :class:`FitConfig` (:mod:`cuboidlib.fitting`).
 They are imported on first use, so ``import cuboidlib`` (and the command-line tool) start quickly.
@@ -27,6 +28,7 @@ _PUBLIC = {
     "abstract": "abstraction",
     "Abstraction": "results",
     "OrientationWarning": "abstraction",
+    "NetworkFitWarning": "abstraction",
     "load_point_cloud": "io",
     "PointCloud": "io",
     "load_trained_model": "applications",
