@@ -482,6 +482,27 @@ def _record(args, files, complete: bool = True) -> None:
     write_manifest(args.out, files, "cuboidlib " + shlex.join(argv), complete)
 
 
+class _Recording:
+    """While a command writes many files: the manifest every few seconds (not after every file, which grows as
+    N^2) and when the run is interrupted, with what it wrote so far. ``files`` is the list the command extends."""
+
+    def __init__(self, args, files: list):
+        self.args, self.files, self.last = args, files, time.perf_counter()
+
+    def tick(self) -> None:
+        if time.perf_counter() - self.last > 2.0:
+            _record(self.args, self.files, complete=False)
+            self.last = time.perf_counter()
+
+    def __enter__(self) -> "_Recording":
+        return self
+
+    def __exit__(self, error_type, error, trace) -> bool:
+        if error_type is not None:  # an interrupted run says so
+            _record(self.args, self.files, complete=False)
+        return False
+
+
 def _bars(args) -> bool:
     """Progress bars only for a person watching: not with --quiet, not into a redirected log."""
     return not args.quiet and sys.stderr.isatty()
@@ -610,8 +631,8 @@ def _run_shapes(args, what: str, prepare) -> int:
         _report(args, result, written, time.perf_counter() - start)
         _record(args, written)
         return 0
-    rows, files, recorded = [], [], time.perf_counter()
-    try:
+    rows, files = [], []
+    with _Recording(args, files) as recording:
         for path, stem in tqdm(zip(shapes, stems), total=len(shapes), desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
             start = time.perf_counter()
             try:
@@ -630,12 +651,7 @@ def _run_shapes(args, what: str, prepare) -> int:
             rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
                          "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
                          "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
-            if time.perf_counter() - recorded > 2.0:  # now and then, not after every shape (that grows as N^2)
-                _record(args, files, complete=False)
-                recorded = time.perf_counter()
-    except BaseException:
-        _record(args, files, complete=False)  # an interrupted run says so, with what it wrote
-        raise
+            recording.tick()
     files.append(_write_summary(args.out, rows))
     _record(args, files)
     failed = sum(r["status"] == "failed" for r in rows)
@@ -796,20 +812,15 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict], start: 
     from .abstraction import Abstraction  # imports torch: start-up time
 
     cuboids = decoded.cuboids.to(device="cpu")
-    written, recorded = [], time.perf_counter()
-    try:
+    written = []
+    with _Recording(args, written) as recording:
         for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False,
                       delay=_BAR_DELAY):
             one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
                                 cuboids.exists[k:k + 1], validate=False)
             result = Abstraction(one, method=methods[k])
             written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
-            if time.perf_counter() - recorded > 2.0:  # now and then, not after every shape (that grows as N^2)
-                _record(args, written, complete=False)
-                recorded = time.perf_counter()
-    except BaseException:
-        _record(args, written, complete=False)  # an interrupted run says so, with what it wrote
-        raise
+            recording.tick()
     _record(args, written)
     if not args.quiet:
         print(f"{summary()} | {time.perf_counter() - start:.1f} s")
