@@ -273,7 +273,7 @@ def _cmd_train(args) -> int:
         n = processes.world_size
         launcher = ["torchrun", f"--nproc_per_node={n}", "-m", "cuboidlib"] if n > 1 else ["cuboidlib"]
         command = shlex.join([*launcher, *(args.argv if args.argv is not None else sys.argv[1:])])
-        card = publish_run(results[-1].out_dir, args.release, command)
+        card = publish_run(results[-1].out_dir, args.release, command, started=args.started)
         if not args.quiet:
             print(card["test"]["table"])
             print(f"released {args.release} and {card_path(args.release)}")
@@ -988,12 +988,13 @@ def main(argv: list[str] | None = None) -> int:
         The exit code: 0 success, 1 a shape of several failed or an unexpected error or a missing package,
         2 a user's error (one line on stderr), 3 training diverged, 130 interrupted.
     """
+    started = time.time()  # a command's wall time, which train --release records in its card
     parser = build_parser()
     try:  # --help looks up library defaults, which import the dependencies
         args = parser.parse_args(argv)
     except ImportError as exc:
         return _missing_package(exc)
-    args.argv = argv
+    args.argv, args.started = argv, started
     try:
         if args.command in _WRITES_INTO_OUT and os.environ.get("RANK", "0") == "0" and not getattr(
                 args, "print_config", False):

@@ -124,7 +124,8 @@ class PointCloudDataset(torch.utils.data.Dataset):
     """Shapes from a :class:`~cuboidlib.shapes.ShapeCollection` or from files, one item per shape and angle.
 
     An item is a dict: "points" and "normals" (N, 3) float32, "labels" (N,) int64 when known, "index"
-    (the shape's index in the source) and, for a collection, "structure_id", both int64 scalars. Subsets
+    (the shape's index in the source) and, for a collection, "structure_id", both int64 scalars, and
+    "instances" (N,) int64 when the collection has them. Subsets
     come from a generator seeded by (seed, epoch, item), repeatable whatever the worker order. Files are
     read lazily with :func:`cuboidlib.io.load_point_cloud` and kept in memory.
 
@@ -255,17 +256,23 @@ class PointCloudDataset(torch.utils.data.Dataset):
         points = torch.as_tensor(np.asarray(pc.points, dtype=np.float32))
         normals = torch.as_tensor(np.asarray(pc.normals, dtype=np.float32))
         labels = None if pc.labels is None else torch.as_tensor(np.asarray(pc.labels, dtype=np.int64))
+        instances = None
+        if self.collection is not None and self.collection.instances is not None:
+            instances = torch.as_tensor(self.collection.instances[shape_index])
         if self.n_points is not None and self.n_points < points.shape[0]:
             g = torch.Generator().manual_seed(int(np.random.SeedSequence([self.seed, self.epoch, item]).generate_state(1)[0]))
             keep = torch.randperm(points.shape[0], generator=g)[: self.n_points]
             points, normals = points[keep], normals[keep]
             labels = None if labels is None else labels[keep]
+            instances = None if instances is None else instances[keep]
         angle = self.rotations[rot]
         if angle != 0.0:
             points, normals = rotate_about_y(points, angle), rotate_about_y(normals, angle)
         out = {"points": points, "normals": normals, "index": torch.tensor(shape_index)}
         if labels is not None:
             out["labels"] = labels
+        if instances is not None:
+            out["instances"] = instances
         if self.collection is not None:
             out["structure_id"] = torch.tensor(int(self.collection.structure_ids[shape_index]))
         return out
@@ -286,6 +293,8 @@ class ShapeSet:
         indices: (S,) each shape's index in its source (collection or sorted file list).
         part_names: the names of the part labels, or None when unknown.
         num_parts: the number of part labels, or None.
+        instances: (S, N) int64 part instances (the solid each point of a procedural shape was sampled on,
+            :attr:`cuboidlib.shapes.Shape.instances`), or None.
     """
 
     points: torch.Tensor
@@ -294,6 +303,7 @@ class ShapeSet:
     indices: torch.Tensor
     part_names: tuple[str, ...] | None = None
     num_parts: int | None = None
+    instances: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -303,6 +313,7 @@ class ShapeSet:
         return ShapeSet(
             self.points[index], self.normals[index], None if self.labels is None else self.labels[index],
             self.indices[index], self.part_names, self.num_parts,
+            None if self.instances is None else self.instances[index],
         )
 
     def to(self, device: torch.device | str) -> "ShapeSet":
@@ -310,6 +321,7 @@ class ShapeSet:
         return ShapeSet(
             self.points.to(device), self.normals.to(device), None if self.labels is None else self.labels.to(device),
             self.indices, self.part_names, self.num_parts,
+            None if self.instances is None else self.instances.to(device),
         )
 
 
@@ -437,6 +449,7 @@ def load_shapes(config: DataConfig, progress: bool = False) -> ShapeSet:
             raise ValueError(
                 f"part labels must lie in [0, {num_parts}), got [{int(labels.min())}, {int(labels.max())}]"
             )
+    has_instances = all("instances" in item for item in items)
     return ShapeSet(
         torch.stack([item["points"] for item in items]),
         torch.stack([item["normals"] for item in items]),
@@ -444,6 +457,7 @@ def load_shapes(config: DataConfig, progress: bool = False) -> ShapeSet:
         torch.stack([item["index"] for item in items]),
         part_names,
         num_parts,
+        torch.stack([item["instances"] for item in items]) if has_instances else None,
     )
 
 

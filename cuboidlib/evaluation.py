@@ -34,6 +34,7 @@ from .metrics import (
     mean_iou,
     normal_consistency_terms,
     number_of_existing_cuboids,
+    part_concision,
     part_confusion,
     part_ious,
     reassigned_fraction,
@@ -173,7 +174,10 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
         the scored points: ``counts[t][p]`` points of part ``parts[t]`` labelled ``parts[p]``);
         ``box_distance`` (mean of :func:`~cuboidlib.metrics.segment_box_distance`, None when ``pred``
         segments other points than ``shapes``); ``reassigned`` (mean of
-        :func:`~cuboidlib.metrics.reassigned_fraction`, None without an allocation W); ``n_ac``.
+        :func:`~cuboidlib.metrics.reassigned_fraction`, None without an allocation W); ``n_ac``;
+        ``concision`` (part name -> {"cuboids_per_instance", "instances_per_cuboid"} of
+        :func:`~cuboidlib.metrics.part_concision` over all the shapes, None for a part absent from them; None
+        when the shapes have no part labels or instances).
     """
     seg, c = pred.labels.cpu(), pred.cuboids
     box = None
@@ -194,9 +198,18 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
                     "seed": seed, "cuboid_labels": cuboid_labels.tolist(),
                     "confusion": {"parts": list(names[:num_parts]), "counts": confusion.tolist()}}
     reassigned = None if pred.W is None else float(reassigned_fraction(pred.W, c.exists).double().mean())
+    concision = None
+    if shapes.labels is not None and shapes.instances is not None and seg.shape == shapes.labels.shape:
+        num_parts = shapes.num_parts if shapes.num_parts is not None else int(shapes.labels.max()) + 1
+        names = shapes.part_names or tuple(f"part {i}" for i in range(num_parts))
+        conc = part_concision(seg, shapes.labels.cpu(), shapes.instances.cpu(), num_parts)
+        concision = {names[i]: None if conc["cuboids_per_instance"][i].isnan() else
+                     {key: None if v[i].isnan() else float(v[i]) for key, v in conc.items()}
+                     for i in range(num_parts)}
     return {"miou": miou, "part_iou": per_part, "label_transfer": transfer,
             "box_distance": None if box is None else float(box.double().mean()),
-            "reassigned": reassigned, "n_ac": float(number_of_existing_cuboids(c.exists))}
+            "reassigned": reassigned, "n_ac": float(number_of_existing_cuboids(c.exists)),
+            "concision": concision}
 
 
 def evaluate_model(
@@ -313,6 +326,16 @@ def format_table(results: Sequence[dict], title: str | None = None) -> str:
     lines.append("N_AC: average number of existing cuboids (existence probability > 0.5; k-means: boxes fitted).")
     lines.append("box dist: mean distance of a point to the solid box of the cuboid it is segmented to (shape "
                  "diagonal 1; 0 = every segment inside its box), the agreement of segmentation and abstraction.")
+    for r in results:
+        if r.get("concision"):
+            parts = ", ".join(f"{k} {v['cuboids_per_instance']:.2f} / {v['instances_per_cuboid']:.2f}"
+                              if v and v["instances_per_cuboid"] is not None else f"{k} -"
+                              for k, v in r["concision"].items())
+            lines.append(f"  cuboids per instance / instances per cuboid, {r['method']}: {parts}")
+    if any(r.get("concision") for r in results):
+        lines.append("cuboids per instance: cuboids holding >= 20 % of a part instance's points (a leg, one slat), "
+                     "1 = no instance cut into pieces; instances per cuboid: instances giving a cuboid >= 20 % of its "
+                     "points, above 1 = instances merged.")
     for r in results:
         if r.get("reassigned") is not None:
             lines.append(f"{r['method']}: {100 * r['reassigned']:.1f} % of the points are allocated most to a cuboid "

@@ -4,7 +4,8 @@ The authors published no evaluation code and papers report the Chamfer distance 
 so every choice is explicit: a :class:`ChamferConvention` says how a Chamfer distance is computed, and
 its :meth:`~ChamferConvention.describe` is printed beside every number. :func:`segment_box_distance`
 (do segmentation and abstraction agree?) and :func:`reassigned_fraction` (do allocation and existence
-agree?) are the course's measures, not the paper's.
+agree?) are the course's measures, not the paper's; so is :func:`part_concision` (is a part split into several
+cuboids, or are several parts merged into one?).
 
 Shapes: points and normals (B, N, 3); cuboids as in :mod:`cuboidlib.geometry`; segmentations and
 part labels (S, N) integer tensors.
@@ -31,6 +32,7 @@ __all__ = [
     "part_ious",
     "part_confusion",
     "mean_iou",
+    "part_concision",
     "segment_box_distance",
     "reassigned_fraction",
 ]
@@ -336,6 +338,67 @@ def mean_iou(predicted_parts, part_labels, num_parts: int, per_shape: bool = Fal
         return float(iou[~iou.isnan()].mean())
     inter, union = _intersections_and_unions(predicted_parts, part_labels, num_parts)  # (S, L)
     return float(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).mean())
+
+
+def part_concision(segmentation, part_labels, instances, num_parts: int, share: float = 0.2) -> dict[str, torch.Tensor]:
+    """How concise a segmentation is, per part label: are part instances split, are they merged?
+
+    mIoU sees neither a part cut into several cuboids nor several instances under one cuboid. A part
+    instance is one solid of a procedural shape (one leg, one slat of a back; :attr:`cuboidlib.shapes.Shape.instances`).
+
+    * cuboids per instance: for each instance, the number of cuboids that hold at least ``share`` of its
+      points; averaged over the instances of each part. 1 means no instance is cut into pieces.
+    * instances per cuboid: for each cuboid that holds points, the number of instances that give it at least
+      ``share`` of its points; averaged over the cuboids whose points are mostly of each part. Above 1 means
+      merging: the right answer for the slats of one back, the wrong one for four legs.
+
+    Args:
+        segmentation: (S, N) int, each point's cuboid (any non-negative indices).
+        part_labels: (S, N) int ground-truth parts in [0, num_parts).
+        instances: (S, N) int part instances, non-negative; indices are per shape, and every point of one
+            instance carries one part label.
+        num_parts: the number of part labels.
+        share: the share of points that makes a cuboid count for an instance (and the other way round),
+            in (0, 1].
+
+    Returns:
+        {"cuboids_per_instance", "instances_per_cuboid"}: (num_parts,) float64 tensors, NaN for a part with
+        no instance (no cuboid).
+    """
+    seg = _check_labels(segmentation, "segmentation")
+    gt = _check_labels(part_labels, "part_labels")
+    inst = _check_labels(instances, "instances")
+    if not (seg.shape == gt.shape == inst.shape):
+        raise ValueError(f"segmentation {tuple(seg.shape)}, part_labels {tuple(gt.shape)} and instances "
+                         f"{tuple(inst.shape)} must have the same shape")
+    if isinstance(num_parts, bool) or not isinstance(num_parts, int) or num_parts < 1:
+        raise ValueError(f"num_parts must be a positive integer, got {num_parts!r}")
+    if not (isinstance(share, (int, float)) and 0 < share <= 1):
+        raise ValueError(f"share must be a number in (0, 1], got {share!r}")
+    for t, name in ((seg, "segmentation"), (inst, "instances")):
+        if t.numel() and int(t.min()) < 0:
+            raise ValueError(f"{name} must be non-negative indices, got {int(t.min())}")
+    if gt.numel() and (int(gt.min()) < 0 or int(gt.max()) >= num_parts):
+        raise ValueError(f"part_labels must lie in [0, {num_parts}), got [{int(gt.min())}, {int(gt.max())}]")
+    per_instance = [[] for _ in range(num_parts)]
+    per_cuboid = [[] for _ in range(num_parts)]
+    for s in range(seg.shape[0]):
+        n_inst, n_seg = int(inst[s].max()) + 1, int(seg[s].max()) + 1
+        # counts[i, j]: points of instance i in cuboid j; part[i]: the label of instance i.
+        counts = torch.bincount(inst[s] * n_seg + seg[s], minlength=n_inst * n_seg).view(n_inst, n_seg).double()
+        labels = torch.bincount(inst[s] * num_parts + gt[s], minlength=n_inst * num_parts).view(n_inst, num_parts)
+        instance_part = labels.argmax(dim=1)
+        in_instance, in_cuboid = counts.sum(dim=1), counts.sum(dim=0)
+        for i in torch.nonzero(in_instance > 0).flatten().tolist():
+            per_instance[int(instance_part[i])].append(int((counts[i] >= share * in_instance[i]).sum()))
+        cuboid_labels = torch.bincount(seg[s] * num_parts + gt[s], minlength=n_seg * num_parts).view(n_seg, num_parts)
+        for j in torch.nonzero(in_cuboid > 0).flatten().tolist():
+            per_cuboid[int(cuboid_labels[j].argmax())].append(int((counts[:, j] >= share * in_cuboid[j]).sum()))
+
+    def means(lists):
+        return torch.tensor([sum(v) / len(v) if v else math.nan for v in lists], dtype=torch.float64)
+
+    return {"cuboids_per_instance": means(per_instance), "instances_per_cuboid": means(per_cuboid)}
 
 
 def segment_box_distance(points, segmentation, centers, quaternions, half_sizes) -> torch.Tensor:

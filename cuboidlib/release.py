@@ -10,7 +10,9 @@ a JSON card beside it (``chair.json``) with the keys
 * ``initialised_from`` (two-stage recipes): the first stage's checkpoint, config and training summary;
 * ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
 * ``translation_head`` (centroid-centre networks only): the refit of :func:`fit_translation_head`;
-* ``test``: the metrics of network and baseline (:func:`cuboidlib.evaluation.evaluate_model`) and their table.
+* ``test``: the metrics of network and baseline (:func:`cuboidlib.evaluation.evaluate_model`) and their table;
+* ``command_seconds`` (``cuboidlib train --release`` only): the wall time from the command's start to the card,
+  making the data, every stage and this scoring included.
 """
 
 from __future__ import annotations
@@ -233,6 +235,7 @@ def publish_run(
     dest: str | os.PathLike,
     command: str,
     seed: int = 0,
+    started: float | None = None,
 ) -> dict:
     """Copy ``run_dir/best.pt`` to ``dest`` (weights and config), score it on the test split and write its card.
 
@@ -241,6 +244,8 @@ def publish_run(
         dest: the released ``.pt`` file; the card goes to ``card_path(dest)``.
         command: the command line recorded in the card.
         seed: seed of the evaluation's surface samples and label-transfer shapes.
+        started: when ``command`` started (``time.time()``), to record its wall time as ``command_seconds``;
+            None records none.
 
     Returns:
         The card, a dict of JSON types (module docstring).
@@ -296,6 +301,8 @@ def publish_run(
         "test": {"split": "test", "n_shapes": len(shapes), "evaluation_seconds": round(time.perf_counter() - start, 1),
                  "results": [network, baseline], "table": format_table([network, baseline], title)},
     }
+    if started is not None:
+        card["command_seconds"] = round(time.time() - started, 1)
     card_path(dest).write_text(json.dumps(card, indent=2) + "\n")
     return card
 

@@ -644,6 +644,8 @@ class Shape:
         structure: string of the optional parts, e.g. ``"pedestal+arms+solid-back"``.
         structure_id: coarse structure, an index into ``STRUCTURES[category]``.
         parts: the analytic solids in normalised coordinates (their union is the shape).
+        instances: (N,) int64 the part instance of each point: the index into ``parts`` of the solid it was
+            sampled on (a leg, one slat of a back). ``labels == [parts[i].label for i in instances]``.
     """
 
     category: str
@@ -653,6 +655,7 @@ class Shape:
     structure: str
     structure_id: int
     parts: list[Solid] = field(repr=False)
+    instances: np.ndarray | None = None
 
     @property
     def part_names(self) -> tuple[str, ...]:
@@ -682,7 +685,7 @@ def _sample_shape(category: str, index: int, seed: int, n_points: int):
     p, nn, idx = sample_union_surface(solids, n_points, rng)
     labels = np.array([s.label for s in solids])[idx]
     p, center, scale = normalize(p)
-    return solids, structure, sid, p, nn, labels, center, scale
+    return solids, structure, sid, p, nn, labels, idx, center, scale
 
 
 def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 0) -> Shape:
@@ -700,7 +703,7 @@ def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 
     """
     _check_category(category)
     n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
-    solids, structure, sid, p, nn, labels, center, scale = _sample_shape(category, index, seed, n_points)
+    solids, structure, sid, p, nn, labels, instances, center, scale = _sample_shape(category, index, seed, n_points)
     return Shape(
         category=category,
         points=p.astype(np.float32),
@@ -709,6 +712,7 @@ def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 
         structure=structure,
         structure_id=sid,
         parts=[s.mapped(center, scale) for s in solids],
+        instances=np.asarray(instances, dtype=np.int64),
     )
 
 
@@ -724,6 +728,8 @@ class ShapeCollection:
         structures: (S,) structure strings.
         structure_ids: (S,) int64 coarse structures (indices into ``STRUCTURES[category]``).
         seed: the collection's seed.
+        instances: (S, N) int64 part instances (each point's solid, as in :attr:`Shape.instances`), or None
+            for a collection file written without them.
     """
 
     category: str
@@ -733,6 +739,7 @@ class ShapeCollection:
     structures: np.ndarray
     structure_ids: np.ndarray
     seed: int = 0
+    instances: np.ndarray | None = None
 
     @property
     def part_names(self) -> tuple[str, ...]:
@@ -758,11 +765,12 @@ class ShapeCollection:
         """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        extra = {} if self.instances is None else {"instances": self.instances}
         with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".npz", delete=False) as f:
             np.savez(f, category=np.array(self.category), points=self.points, normals=self.normals,
                      labels=self.labels, structures=np.asarray(self.structures, dtype=str),
                      structure_ids=self.structure_ids, seed=np.array(self.seed),
-                     generator_version=np.array(GENERATOR_VERSION))
+                     generator_version=np.array(GENERATOR_VERSION), **extra)
         os.replace(f.name, path)
         return path
 
@@ -806,9 +814,16 @@ class ShapeCollection:
             raise ValueError(f"{path}: holds NaN or infinite coordinates")
         if labels.size and (labels.min() < 0 or labels.max() >= len(PART_NAMES[category])):
             raise ValueError(f"{path}: part labels outside 0 .. {len(PART_NAMES[category]) - 1}")
+        instances = data.get("instances")
+        if instances is not None:
+            if instances.shape != labels.shape or instances.dtype.kind not in "iu" or \
+                    (instances.size and instances.min() < 0):
+                raise ValueError(f"{path}: instances must be non-negative integers shaped like the labels "
+                                 f"{labels.shape}, got {instances.dtype} {instances.shape}")
+            instances = instances.astype(np.int64)
         return cls(category=category, points=points, normals=normals, labels=labels.astype(np.int64),
                    structures=data["structures"], structure_ids=data["structure_ids"].astype(np.int64),
-                   seed=int(data.get("seed", 0)))
+                   seed=int(data.get("seed", 0)), instances=instances)
 
 
 def default_cache_dir() -> Path:
@@ -839,7 +854,8 @@ def make_collection(
         progress: show a tqdm progress bar while generating.
 
     Returns:
-        A :class:`ShapeCollection`: points (S, N, 3) and normals (S, N, 3) float32, labels (S, N) int64.
+        A :class:`ShapeCollection`: points (S, N, 3) and normals (S, N, 3) float32, labels and instances
+        (S, N) int64.
     """
     _check_category(category)
     n_shapes = check_size(n_shapes, "n_shapes", MAX_SHAPES, "shapes")
@@ -852,13 +868,15 @@ def make_collection(
         if cache_file.is_file():
             try:
                 cached = ShapeCollection.load(cache_file)
-                if (cached.category, cached.points.shape, cached.seed) == (category, (n_shapes, n_points, 3), seed):
+                if (cached.category, cached.points.shape, cached.seed) == (category, (n_shapes, n_points, 3), seed) \
+                        and cached.instances is not None:
                     return cached
             except ValueError:
-                pass  # unreadable, invalid or mismatched cache entry: regenerate and overwrite it
+                pass  # unreadable, invalid, mismatched or instance-less cache entry: regenerate and overwrite it
     points = np.empty((n_shapes, n_points, 3), np.float32)
     normals = np.empty((n_shapes, n_points, 3), np.float32)
     labels = np.empty((n_shapes, n_points), np.int64)
+    instances = np.empty((n_shapes, n_points), np.int64)
     structures, ids = [], np.empty(n_shapes, np.int64)
     indices = range(n_shapes)
     if progress:
@@ -866,11 +884,11 @@ def make_collection(
 
         indices = tqdm(indices, desc=f"{category} shapes")
     for i in indices:
-        _, structure, sid, p, nn, lab, _, _ = _sample_shape(category, i, seed, n_points)
-        points[i], normals[i], labels[i] = p, nn, lab
+        _, structure, sid, p, nn, lab, inst, _, _ = _sample_shape(category, i, seed, n_points)
+        points[i], normals[i], labels[i], instances[i] = p, nn, lab, inst
         structures.append(structure)
         ids[i] = sid
-    coll = ShapeCollection(category, points, normals, labels, np.array(structures, dtype=str), ids, seed)
+    coll = ShapeCollection(category, points, normals, labels, np.array(structures, dtype=str), ids, seed, instances)
     if cache_file is not None:
         coll.save(cache_file)
     return coll

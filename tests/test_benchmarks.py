@@ -42,3 +42,25 @@ def test_bench_real_shapes_prints_every_method_of_a_shape():
                     proc.stdout, re.M)
     assert row, proc.stdout
     assert "thin-structure set: 1 shapes" in proc.stdout, proc.stdout
+
+
+def test_bench_time_to_quality_reports_both_stages_against_wall_time_and_the_targets(tmp_path):
+    recipe = ROOT / "data_samples" / "checkpoints" / "configs" / "15min"
+    run = tmp_path / "run"
+    train = [sys.executable, "-m", "cuboidlib", "train", "--config", str(recipe / "table.json"),
+             "--finetune", str(recipe / "finetune" / "table.json"), "--out", str(run), "--release",
+             str(run / "released.pt"), "--shapes", "30", "--points", "128", "--quiet", "--threads", "1",
+             "--set", "max_steps=100", "--set", "max_minutes=null"]
+    proc = subprocess.run(train, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_time_to_quality.py"), "--category",
+                           "table", "--report-only", "--out", str(run), "--json", str(tmp_path / "r.json")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    rows = re.findall(r"^\s+([\d.]+)\s+(first|second)\s+(\d+)\s", proc.stdout, re.M)
+    assert [s for _, s, _ in rows].count("first") == 1 and [s for _, s, _ in rows].count("second") == 5, proc.stdout
+    minutes = [float(m) for m, _, _ in rows]
+    assert minutes == sorted(minutes), proc.stdout  # the second stage follows the first on the wall clock
+    for name in ("test mIoU %", "N_AC", "smallest part IoU %", "k-means CD / network CD", "box distance"):
+        assert re.search(rf"^\s+{re.escape(name)}\s+[\d.]+\s+target .*(met|MISSED)$", proc.stdout, re.M), proc.stdout
+    assert "cuboids per instance / instances per cuboid: top" in proc.stdout

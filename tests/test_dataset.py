@@ -28,6 +28,7 @@ def test_items_from_a_collection_batch_into_model_tensors(collection):
     torch.testing.assert_close(full[match], item["points"])
     torch.testing.assert_close(torch.as_tensor(collection.normals[2])[match], item["normals"])
     torch.testing.assert_close(torch.as_tensor(collection.labels[2])[match], item["labels"])
+    torch.testing.assert_close(torch.as_tensor(collection.instances[2])[match], item["instances"])
     assert len(set(match.tolist())) == 128, "sampling without replacement"
     batch = next(iter(torch.utils.data.DataLoader(ds, batch_size=3)))
     assert batch["points"].shape == (3, 128, 3) and batch["labels"].shape == (3, 128)
@@ -160,3 +161,14 @@ def test_bad_inputs(tmp_path, collection):
     ds = PointCloudDataset([tmp_path / "missing.ply"])
     with pytest.raises(FileNotFoundError, match="missing.ply: no such file"):
         ds[0]
+
+
+def test_procedural_shape_sets_keep_the_part_instances_through_splits():
+    from cuboidlib.dataset import DataConfig, load_splits
+
+    config = DataConfig(category="table", n_shapes=10, n_points=64, data_seed=2)
+    splits = load_splits(config)
+    coll = make_collection("table", 10, 64, seed=2, use_cache=False)
+    for split in splits.values():
+        torch.testing.assert_close(split.instances, torch.as_tensor(coll.instances)[split.indices])
+        assert split.to("cpu").instances is not None

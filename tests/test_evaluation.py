@@ -39,7 +39,8 @@ def _two_box_shapes(n_shapes: int = 5, n_points: int = 400, seed: int = 0):
     half = torch.tensor([[0.25, 0.05, 0.15], [0.2, 0.15, 0.03]]).repeat(n_shapes, 1, 1)  # distinct principal axes
     quats = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n_shapes, 2, 1)
     s = sample_cuboid_surfaces(centers, quats, half, n_points, generator=g)
-    shapes = ShapeSet(s.points, s.normals, s.cuboid_index.clone(), torch.arange(n_shapes), ("seat", "back"), 2)
+    shapes = ShapeSet(s.points, s.normals, s.cuboid_index.clone(), torch.arange(n_shapes), ("seat", "back"), 2,
+                      instances=s.cuboid_index.clone())  # each box one part instance
     exists = torch.ones(n_shapes, 2, dtype=torch.bool)
     return shapes, _batch(centers, quats, half, exists, s.cuboid_index.clone())
 
@@ -170,6 +171,10 @@ def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():
     assert r["chamfer"][0]["value"] < 2 * perfect["chamfer"][0]["value"]
     assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid"}
     assert r["reassigned"] is None  # k-means boxes have no allocation
+    # the perfect segmentation neither cuts nor merges; k-means finds the same two boxes
+    for scores in (perfect, r):
+        assert scores["concision"] == {name: {"cuboids_per_instance": 1.0, "instances_per_cuboid": 1.0}
+                                       for name in ("seat", "back")}, scores["concision"]
     confusion = r["label_transfer"]["confusion"]
     assert confusion["parts"] == list(shapes.part_names)
     scored = shapes.labels[torch.as_tensor(label_transfer_split(len(shapes))[1])]

@@ -7,6 +7,7 @@ from cuboidlib.metrics import (
     ChamferConvention,
     cuboid_chamfer_distance,
     mean_iou,
+    part_concision,
     normal_consistency,
     normal_consistency_terms,
     number_of_existing_cuboids,
@@ -299,3 +300,49 @@ def test_segment_box_distance_rejects_bad_segmentations():
         segment_box_distance(points, torch.zeros(1, 3), centers, quats, half)
     with pytest.raises(ValueError, match="segmentation must be integer indices of shape"):
         segment_box_distance(points, torch.tensor([[0, 0]]), centers, quats, half)
+
+
+def test_part_concision_by_hand():
+    # one shape: two legs (instances 0 and 1, part 1) under one cuboid, a seat (instance 2, part 0) cut in two
+    gt = torch.tensor([[1] * 8 + [0] * 10])
+    inst = torch.tensor([[0] * 4 + [1] * 4 + [2] * 10])
+    seg = torch.tensor([[0] * 8 + [1] * 5 + [2] * 5])
+    c = part_concision(seg, gt, inst, 2)
+    torch.testing.assert_close(c["cuboids_per_instance"], torch.tensor([2.0, 1.0], dtype=torch.float64))
+    torch.testing.assert_close(c["instances_per_cuboid"], torch.tensor([1.0, 2.0], dtype=torch.float64))
+
+
+def test_part_concision_counts_only_shares_of_at_least_the_threshold_and_nan_for_absent_parts():
+    # a leg of 10 points: 8 in cuboid 0, 2 (20 %) in cuboid 1, so 2 cuboids at share 0.2 and 1 at share 0.25
+    gt = torch.tensor([[1] * 10])
+    inst = torch.zeros(1, 10, dtype=torch.long)
+    seg = torch.tensor([[0] * 8 + [1] * 2])
+    assert part_concision(seg, gt, inst, 3)["cuboids_per_instance"][1] == 2.0
+    c = part_concision(seg, gt, inst, 3, share=0.25)
+    assert c["cuboids_per_instance"][1] == 1.0
+    assert c["cuboids_per_instance"][0].isnan() and c["instances_per_cuboid"][2].isnan()
+
+
+def test_part_concision_is_invariant_to_relabelling_cuboids_and_instances():
+    g = torch.Generator().manual_seed(0)
+    gt = torch.randint(0, 3, (4, 200), generator=g)
+    inst = gt * 5 + torch.randint(0, 5, (4, 200), generator=g)  # each instance within one part
+    seg = torch.randint(0, 7, (4, 200), generator=g)
+    a = part_concision(seg, gt, inst, 3)
+    b = part_concision(torch.randperm(7, generator=g)[seg], gt, torch.randperm(15, generator=g)[inst], 3)
+    for key in a:
+        torch.testing.assert_close(a[key], b[key])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"instances": torch.zeros(1, 5, dtype=torch.long)}, "same shape"),
+    ({"instances": -torch.ones(1, 4, dtype=torch.long)}, "non-negative"),
+    ({"share": 0.0}, "share must be"),
+    ({"num_parts": 1}, "part_labels must lie"),
+    ({"segmentation": torch.zeros(1, 4)}, "integer indices"),
+])
+def test_part_concision_rejects_bad_input(kwargs, match):
+    args = {"segmentation": torch.zeros(1, 4, dtype=torch.long), "part_labels": torch.tensor([[0, 1, 1, 0]]),
+            "instances": torch.zeros(1, 4, dtype=torch.long), "num_parts": 2}
+    with pytest.raises(ValueError, match=match):
+        part_concision(**{**args, **kwargs})

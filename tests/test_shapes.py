@@ -135,8 +135,34 @@ def test_collection_save_load_round_trip_without_pickle(tmp_path):
         assert z["points"].shape == (4, 64, 3)
     back = ShapeCollection.load(path)
     assert back.category == "table" and back.seed == 0 and len(back) == 4
-    for name in ("points", "normals", "labels", "structures", "structure_ids"):
+    for name in ("points", "normals", "labels", "structures", "structure_ids", "instances"):
         np.testing.assert_array_equal(getattr(back, name), getattr(coll, name))
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_each_point_knows_the_solid_it_was_sampled_on(samples, category):
+    for s in samples[category]:
+        assert s.instances.shape == s.labels.shape and s.instances.dtype == np.int64
+        np.testing.assert_array_equal(s.labels, np.array([p.label for p in s.parts])[s.instances])
+        sdf = np.stack([p.sdf(s.points.astype(np.float64)) for p in s.parts])  # (parts, N)
+        own = np.abs(sdf[s.instances, np.arange(len(s.points))])
+        assert np.median(own) < 1e-4  # each point lies on the surface of its own solid
+    coll = make_collection(category, N_SHAPES, 1024, seed=3, use_cache=False)
+    np.testing.assert_array_equal(coll.instances, np.stack([s.instances for s in samples[category]]))
+
+
+def test_a_cache_file_without_instances_is_regenerated_and_an_old_file_still_loads(tmp_path):
+    coll = make_collection("chair", 2, 32, seed=0, cache_dir=tmp_path)
+    (path,) = tmp_path.glob("*.npz")
+    with np.load(path) as z:
+        old = {k: z[k] for k in z.files if k != "instances"}
+    np.savez(path, **old)
+    assert ShapeCollection.load(path).instances is None
+    again = make_collection("chair", 2, 32, seed=0, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.instances, coll.instances)
+    np.savez(path, **old, instances=-np.ones((2, 32), np.int64))
+    with pytest.raises(ValueError, match="instances must be non-negative integers"):
+        ShapeCollection.load(path)
 
 
 def test_collections_are_cached_by_their_arguments(tmp_path, monkeypatch):

@@ -638,7 +638,9 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     # the commit is read before the checkpoint is written (replacing a committed one would read as "+dirty")
     monkeypatch.setattr("cuboidlib.release.git_commit", lambda: "written" if dest.exists() else "before")
     argv = ["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--release", str(dest)]
+    before = time.time()
     assert main(argv) == 0
+    command_seconds = time.time() - before
     released = load_checkpoint(dest)
     assert "optimizer" not in released and "rng" not in released
     best = load_checkpoint(tmp_path / "run" / "best.pt")
@@ -651,6 +653,9 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     assert card["training"]["selection"] == "lowest validation loss"
     logged = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "train"]
     assert card["training"]["seconds"] == round(float(logged[-1]["seconds"]), 1) >= 0  # a tiny run may round to 0.0
+    # the whole command, data and scoring included, up to the card
+    assert card["training"]["seconds"] + card["test"]["evaluation_seconds"] - 0.2 <= card["command_seconds"]
+    assert card["command_seconds"] <= command_seconds + 0.1
     assert card["test"]["n_shapes"] == len(splits["test"])
     validated = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "val"]
     curve = card["training"]["validation"]
