@@ -32,6 +32,8 @@ __all__ = [
     "decode_latents",
     "generate_shapes",
     "encode_shapes",
+    "latent_statistics",
+    "latent_distance",
     "abstract_shapes",
     "cuboid_step_changes",
     "Interpolation",
@@ -177,6 +179,56 @@ def encode_shapes(model: CuboidAbstractionNet, points, normals=None) -> torch.Te
     with _evaluating(model):
         mu, _ = model.encode(_as_batch(points, "points"), _normals_like(normals, points))
     return mu
+
+
+def latent_statistics(model: CuboidAbstractionNet, points, normals=None, batch_size: int = 64) -> dict[str, torch.Tensor]:
+    """Where a network puts the shapes it knows: the mean and spread of its latent means mu over a set of shapes.
+
+    A Gaussian fitted to the codes of the training split, stored in a released checkpoint, so that
+    :func:`latent_distance` can tell a shape unlike the training shapes (a network used off its category).
+
+    Args:
+        model: the network.
+        points: (S, N, 3) normalised shapes, S > latent_dim (the training split).
+        normals: (S, N, 3), for a network that reads them.
+        batch_size: shapes per forward pass.
+
+    Returns:
+        {"mean": (D,) float64, "whitening": (D, D) float64 W with W^T W = (C + eps I)^-1, where C is the
+        codes' covariance and eps 1e-3 of its mean variance, "shapes": () int64 S}.
+    """
+    p = _as_batch(points, "points")
+    if p.shape[0] <= model.config.latent_dim:
+        raise ValueError(f"latent_statistics needs more shapes than the {model.config.latent_dim} latent dimensions, "
+                         f"got {p.shape[0]}")
+    n = _normals_like(normals, points)
+    mu = torch.cat([encode_shapes(model, p[s:s + batch_size], None if n is None else n[s:s + batch_size])
+                    for s in range(0, p.shape[0], batch_size)]).double().cpu()
+    covariance = torch.cov(mu.T)
+    covariance += 1e-3 * covariance.diagonal().mean() * torch.eye(mu.shape[1], dtype=torch.float64)
+    lower = torch.linalg.cholesky(covariance)  # C = L L^T, so (x - m)^T C^-1 (x - m) = |L^-1 (x - m)|^2
+    whitening = torch.linalg.solve_triangular(lower, torch.eye(mu.shape[1], dtype=torch.float64), upper=False)
+    return {"mean": mu.mean(dim=0), "whitening": whitening, "shapes": torch.tensor(mu.shape[0])}
+
+
+def latent_distance(mu, statistics: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The Mahalanobis distance of latent codes from the codes of a network's training shapes.
+
+    About sqrt(D) for a shape like the training shapes (D = latent_dim, 64 for the course's networks); much
+    more for a shape of another kind (measured in ``benchmarks/bench_reference_check.py``).
+
+    Args:
+        mu: (B, D) or (D,) latent means (:func:`encode_shapes`).
+        statistics: :func:`latent_statistics` of the training shapes.
+
+    Returns:
+        (B,) float64 |W (mu - mean)|.
+    """
+    mean, whitening = statistics["mean"], statistics["whitening"]
+    mu = as_float_tensor(mu, "mu", dtype=torch.float64)
+    mu = mu.unsqueeze(0) if mu.dim() == 1 else mu
+    check_shape(mu, ("B", mean.shape[0]), "mu")
+    return ((mu.cpu() - mean) @ whitening.T).norm(dim=-1)
 
 
 def _normals_like(normals, points):

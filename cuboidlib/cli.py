@@ -681,9 +681,10 @@ def _report(args, result, written: list, seconds: float) -> None:
               "if it is upright", file=sys.stderr)
     ref = (result.method or {}).get("reference_check", {})
     if ref.get("warned"):
-        print(f"warning: {result.source or 'the shape'}: the network's cuboids reconstruct it {ref['ratio']:.1f}x worse "
-              f"than k-means boxes with as many boxes ({ref['kmeans_boxes']}); this network does not fit the shape, "
-              "`cuboidlib fit` (model=None) fits it without one", file=sys.stderr)
+        from .abstraction import reference_check_reasons  # imports torch: start-up time (already loaded here)
+
+        print(f"warning: {result.source or 'the shape'}: {reference_check_reasons(ref)}; this network does not fit "
+              "the shape, `cuboidlib fit` (model=None) fits it without one", file=sys.stderr)
     if args.quiet:
         return
     chosen = (result.method or {}).get("up_auto", {}).get("chosen")

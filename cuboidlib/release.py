@@ -13,6 +13,9 @@ a JSON card beside it (``chair.json``) with the keys
 * ``test``: the metrics of network and baseline (:func:`cuboidlib.evaluation.evaluate_model`) and their table;
 * ``command_seconds`` (``cuboidlib train --release`` only): the wall time from the command's start to the card,
   making the data, every stage and this scoring included.
+
+The checkpoint itself also holds ``latent_statistics``: where the network puts its training shapes in the
+latent space (:func:`cuboidlib.applications.latent_statistics`), for the check of :func:`cuboidlib.abstract`.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import torch
 
 from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .config import resolve_device
+from .applications import latent_statistics
 from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
@@ -36,7 +40,7 @@ from .dataset import load_splits
 from .train import SELECTIONS, TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
-           "publish_run", "read_card", "cards_markdown", "training_curve", "curve_marks"]
+           "publish_run", "add_latent_statistics", "read_card", "cards_markdown", "training_curve", "curve_marks"]
 
 CARD_FORMAT = "cuboidlib-checkpoint-card"
 
@@ -273,7 +277,10 @@ def publish_run(
                        "rms_error_validation_before": round(before, 5),
                        "rms_error_validation_after": round(_head_rms(model, *val), 5)}
         state["model"] = model.state_dict()
-    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"))
+    model = CuboidAbstractionNet(config.model_config).to(device)
+    model.load_state_dict(state["model"])
+    statistics = latent_statistics(model, splits["train"].points.to(device), splits["train"].normals.to(device))
+    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"), latent_statistics=statistics)
     model, _ = load_model(dest, device=device)
     shapes = splits["test"]
     start = time.perf_counter()
@@ -305,6 +312,26 @@ def publish_run(
         card["command_seconds"] = round(time.time() - started, 1)
     card_path(dest).write_text(json.dumps(card, indent=2) + "\n")
     return card
+
+
+def add_latent_statistics(checkpoint: str | os.PathLike) -> dict[str, torch.Tensor]:
+    """Store :func:`~cuboidlib.applications.latent_statistics` of a released network's training split in its
+    checkpoint, as :func:`publish_run` does, for a network released before it did. The weights are unchanged.
+
+    Args:
+        checkpoint: the released ``.pt`` file; it is rewritten atomically.
+
+    Returns:
+        The statistics stored.
+    """
+    state = load_checkpoint(checkpoint)
+    config = TrainConfig.from_dict(state["config"])
+    model, _ = load_model(checkpoint)
+    train = load_splits(config)["train"]
+    statistics = latent_statistics(model, train.points, train.normals)
+    extra = {k: v for k, v in state.items() if k not in ("format", "format_version", "library_version", "config", "model")}
+    save_checkpoint(checkpoint, state["config"], state["model"], **{**extra, "latent_statistics": statistics})
+    return statistics
 
 
 def read_card(checkpoint: str | os.PathLike) -> dict:

@@ -317,3 +317,18 @@ def test_a_network_off_its_category_warns_with_the_figures_and_can_fall_back_to_
     assert not own.method["reference_check"]["worse"] and "reference_check" not in unchecked.method
     with pytest.raises(ValueError, match="check and fallback must be True or False"):
         cuboidlib.abstract(cloud, model="chair", check="yes")
+
+
+def test_a_shape_unlike_the_training_shapes_warns_by_its_latent_distance_where_k_means_is_as_poor():
+    from cuboidlib.abstraction import LATENT_DISTANCE, REFERENCE_RATIO, NetworkFitWarning
+    from cuboidlib.thin_shapes import thin_shape
+
+    insect = np.concatenate(thin_shape("insect", 0, 1024), axis=1)
+    with pytest.warns(NetworkFitWarning, match=r"unlike the shapes the network was trained on \(latent distance"):
+        result = cuboidlib.abstract(insect, model="animal", up="y", check=True)
+    check = result.method["reference_check"]
+    assert check["ratio"] <= REFERENCE_RATIO < check["ratio"] * 3, "k-means boxes are as poor: the ratio is silent"
+    assert check["latent_distance"] == result.method["latent_distance"] > 2 * LATENT_DISTANCE
+    animal = make_shape("animal", 3, n_points=1024)
+    own = cuboidlib.abstract(np.concatenate([animal.points, animal.normals], axis=1), model="animal", up="y")
+    assert own.method["latent_distance"] < LATENT_DISTANCE  # recorded on every call of a released network

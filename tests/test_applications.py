@@ -377,3 +377,33 @@ def test_applications_pass_the_normals_to_a_network_that_reads_them(normals_mode
         abstract_shapes(normals_model, clouds)
     with pytest.raises(ValueError, match="reads each point's normal: pass normals"):
         interpolate_latents(normals_model, clouds[0], clouds[1])
+
+
+def test_latent_statistics_whiten_the_codes_and_the_distance_is_mahalanobis():
+    from cuboidlib.applications import latent_distance, latent_statistics
+
+    torch.manual_seed(0)
+    config = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=3, cuboid_code_dim=8,
+                               cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
+    model = CuboidAbstractionNet(config).eval()
+    points = torch.rand(40, 64, 3) - 0.5
+    stats = latent_statistics(model, points, batch_size=7)
+    mu = encode_shapes(model, points).double()
+    covariance = torch.cov(mu.T)
+    covariance += 1e-3 * covariance.diagonal().mean() * torch.eye(3, dtype=torch.float64)
+    torch.testing.assert_close(stats["mean"], mu.mean(dim=0))
+    torch.testing.assert_close(stats["whitening"] @ covariance @ stats["whitening"].T, torch.eye(3, dtype=torch.float64))
+    by_hand = ((mu - mu.mean(0)) @ torch.linalg.inv(covariance) * (mu - mu.mean(0))).sum(-1).sqrt()
+    torch.testing.assert_close(latent_distance(mu, stats), by_hand)
+    assert latent_distance(stats["mean"], stats).item() == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError, match="more shapes than the 3 latent dimensions"):
+        latent_statistics(model, points[:3])
+    with pytest.raises(ValueError, match="mu"):
+        latent_distance(torch.zeros(2, 5), stats)
+
+
+def test_every_committed_network_holds_its_training_shapes_latent_statistics():
+    for name, path in committed_checkpoints().items():
+        model, state, _ = load_trained_model(path)
+        stats = state["latent_statistics"]
+        assert stats["mean"].shape == (model.config.latent_dim,) and int(stats["shapes"]) == 700, name

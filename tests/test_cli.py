@@ -404,3 +404,15 @@ def test_an_output_folder_is_never_mixed_or_overwritten_without_asking(tmp_path,
     assert main([*fit[:3], str(foreign), *fit[4:], "--overwrite"]) == 2
     assert_one_line_error(capsys.readouterr().err, "no cuboidlib run recorded")
     assert (foreign / "a.txt").read_text() == "x"
+
+
+def test_abstract_says_when_the_shape_is_unlike_the_networks_training_shapes(tmp_path, capsys):
+    from cuboidlib.thin_shapes import thin_shape
+
+    points, normals = thin_shape("insect", 1, 1024)
+    path = write_point_cloud(tmp_path / "insect.ply", points, normals)
+    assert main(["abstract", str(path), "--model", "animal", "--up", "y", "--out", str(tmp_path / "out"),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"^warning: insect.ply: it is unlike the shapes the network was trained on \(latent distance "
+                     r"[\d.]+, above 12; .*`cuboidlib fit`", err, re.M), err
