@@ -17,6 +17,7 @@ Example::
 
     python benchmarks/bench_time_to_quality.py --category chair
     python benchmarks/bench_time_to_quality.py --category table --budget 10 --out runs/ttq_table_10
+    python benchmarks/bench_time_to_quality.py --category chair --set seed=1 --out runs/ttq_chair_seed1
     python benchmarks/bench_time_to_quality.py --category chair --report-only --out runs/chair_15min
 """
 
@@ -50,7 +51,7 @@ def _first_stage_minutes(category: str, budget: float) -> float:
     return minutes
 
 
-def train(category: str, out: Path, budget: float) -> float:
+def train(category: str, out: Path, budget: float, changes: list[str]) -> float:
     """Run the recipe's one command; the wall seconds from its start to its card."""
     if out.exists():
         raise SystemExit(f"{out} exists: give another --out, or --report-only to report on it")
@@ -58,6 +59,8 @@ def train(category: str, out: Path, budget: float) -> float:
                "--finetune", str(RECIPE / "finetune" / f"{category}.json"), "--out", str(out),
                "--release", str(out / "released.pt"), "--quiet",
                "--set", f"max_minutes={_first_stage_minutes(category, budget)}"]
+    for change in changes:
+        command += ["--set", change]
     with tempfile.TemporaryDirectory() as cache:
         start = time.time()
         subprocess.run(command, check=True, cwd=ROOT, env={**os.environ, "CUBOIDLIB_CACHE": cache})
@@ -134,13 +137,15 @@ def main(argv=None) -> int:
     parser.add_argument("--budget", type=float, default=RECIPE_MINUTES,
                         help="minutes for the whole command; the first stage gets the difference to 15 (default 15)")
     parser.add_argument("--out", type=Path, help="the run folder (default runs/ttq_<category>)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="changes",
+                        help="change a field of the first stage, as `cuboidlib train --set` (e.g. seed=1)")
     parser.add_argument("--report-only", action="store_true",
                         help="do not train: report on the run already in --out (e.g. runs/chair_15min)")
     parser.add_argument("--json", type=Path, help="also write the report here")
     args = parser.parse_args(argv)
     out = (args.out or Path("runs") / f"ttq_{args.category}").resolve()
     if not args.report_only:
-        train(args.category, out, args.budget)
+        train(args.category, out, args.budget, args.changes)
     summary = report(args.category, out)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
