@@ -89,7 +89,7 @@ def _validation_chamfer(checkpoint: Path) -> float:
     return result["chamfer"][0]["value"]
 
 
-def report(category: str, out: Path) -> dict:
+def report(category: str, out: Path, card_file: Path | None = None) -> dict:
     """The validation curve of both stages against wall time, and the card's test scores against the targets."""
     timing = json.loads((out / "wall_seconds.json").read_text()) if (out / "wall_seconds.json").is_file() else None
     start = timing["start"] if timing else (out / "config.json").stat().st_mtime
@@ -105,7 +105,7 @@ def report(category: str, out: Path) -> dict:
         cd = f"{1000 * r['chamfer']:.3f}" if "chamfer" in r else "-"
         print(f"{r['wall_minutes']:8.1f} {r['stage']:>6} {r['step']:5d} {100 * r['miou']:7.1f} {r['n_ac']:6.2f} "
               f"{r['box_distance']:9.4f} {cd:>9}")
-    card = json.loads((out / "released.json").read_text())
+    card = json.loads((card_file or out / "released.json").read_text())
     if timing is None and "command_seconds" in card:  # the card of the one command records its wall time
         timing = {"seconds": card["command_seconds"]}
     net, kmeans = card["test"]["results"][0], card["test"]["results"][1]
@@ -141,12 +141,14 @@ def main(argv=None) -> int:
                         help="change a field of the first stage, as `cuboidlib train --set` (e.g. seed=1)")
     parser.add_argument("--report-only", action="store_true",
                         help="do not train: report on the run already in --out (e.g. runs/chair_15min)")
+    parser.add_argument("--card", type=Path, help="with --report-only: the released network's card, when it is not "
+                        "OUT/released.json (e.g. data_samples/checkpoints/chair_15min.json)")
     parser.add_argument("--json", type=Path, help="also write the report here")
     args = parser.parse_args(argv)
     out = (args.out or Path("runs") / f"ttq_{args.category}").resolve()
     if not args.report_only:
         train(args.category, out, args.budget, args.changes)
-    summary = report(args.category, out)
+    summary = report(args.category, out, args.card)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(summary, indent=2) + "\n")
