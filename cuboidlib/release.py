@@ -358,9 +358,10 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
 def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     """A Markdown table of released checkpoints, one row per card, for README files.
 
-    Columns: checkpoint, M, training (steps, minutes, "a + b" for two stages; processes), test shapes, then
-    network / baseline Chamfer distance x 1000 (the card's first convention), normal consistency and mIoU %,
-    and the network's N_AC and box distance ("-" on a card scored before the box distance existed).
+    Columns: checkpoint (the file's name), M, training (steps, minutes, "a + b" for two stages, and the whole
+    command's minutes when the card records them; processes), test shapes, then network / baseline Chamfer
+    distance x 1000 (the card's first convention), normal consistency and mIoU %, and the network's N_AC and box
+    distance ("-" on a card scored before the box distance existed).
 
     Args:
         checkpoints: the released ``.pt`` files (or their cards).
@@ -381,9 +382,10 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
         minutes = " + ".join(f"{t['seconds'] / 60:.1f}" for t in stages)
         processes = card["machine"].get("processes", 1)
         box = "-" if network.get("box_distance") is None else f"{network['box_distance']:.4f}"
+        whole = f" (the command: {card['command_seconds'] / 60:.1f} min)" if "command_seconds" in card else ""
         rows.append(
-            f"| `{card['checkpoint']}` | {card['config']['model']['num_cuboids']} "
-            f"| {steps} steps, {minutes} min, {processes} process{'es' if processes > 1 else ''} "
+            f"| `{Path(checkpoint).with_suffix('.pt').name}` | {card['config']['model']['num_cuboids']} "
+            f"| {steps} steps, {minutes} min{whole}, {processes} process{'es' if processes > 1 else ''} "
             f"| {card['test']['n_shapes']} "
             f"| {cd[0]:.2f} / {cd[1]:.2f} | {network['normal_consistency']:.3f} / {baseline['normal_consistency']:.3f} "
             f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} | {box} |"
