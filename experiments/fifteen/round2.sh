@@ -5,4 +5,3 @@ set -euo pipefail
 python benchmarks/bench_time_to_quality.py --category table --out runs/ttq_table --json runs/ttq_table.json
 python benchmarks/bench_time_to_quality.py --category chair --set seed=1 --out runs/ttq_chair_seed1 --json runs/ttq_chair_seed1.json
 python benchmarks/bench_time_to_quality.py --category airplane --budget 23 --out runs/ttq_airplane_23 --json runs/ttq_airplane_23.json
-python benchmarks/bench_time_to_quality.py --category animal --out runs/ttq_animal --json runs/ttq_animal.json
