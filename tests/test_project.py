@@ -248,6 +248,16 @@ def test_paper_scale_config_is_the_chair_recipe_at_the_papers_scale(stage):
         assert large.init_from == "runs/chair_large/best.pt"
 
 
+def test_readme_15_minute_table_is_the_cards_of_its_runs():
+    from cuboidlib.release import cards_markdown
+
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"<!-- networks-15min:start -->\n(.*?)\n<!-- networks-15min:end -->", text, re.S)
+    assert block, "README misses the 15-minute table markers"
+    results = ROOT / "experiments" / "fifteen" / "results"
+    assert block.group(1).strip() == cards_markdown([results / f"{c}_15min.pt" for c in CATEGORIES])
+
+
 def test_readme_checkpoint_table_is_the_cards():
     from cuboidlib.release import cards_markdown
 
@@ -284,3 +294,36 @@ def test_functions_stay_short(folder):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and _code_lines(node) > 80:
                 long.append(f"{path.name}:{node.name} ({_code_lines(node)} lines)")
     assert not long, f"functions over 80 lines of code (docstring excluded): {long}"
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    """A config dict with its model and loss sections flattened to "model.k", "loss.lambda_compact", ..."""
+    out = {}
+    for key, value in d.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+@pytest.mark.parametrize("stage", ["", "finetune/"])
+def test_the_15_minute_recipe_is_one_recipe_with_its_stated_exceptions(stage):
+    """configs/15min/: the same settings for every category but M and the two exceptions that
+    experiments/fifteen/README.md states (airplanes' compactness weight, the animals' first-stage existence
+    target); the first stage is the committed first stage with a shorter budget and both cores."""
+    from cuboidlib.train import TrainConfig
+
+    quick = {c: _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{stage}{c}.json").to_dict())
+             for c in CATEGORIES}
+    per_category = {"category", "model.num_cuboids", "init_from"}
+    exceptions = {"airplane": {"loss.lambda_compact"}, "animal": set() if stage else {"loss.existence_min_points"}}
+    for category in CATEGORIES:
+        differ = {k for k, v in quick[category].items() if v != quick["chair"][k]} - per_category
+        assert differ == exceptions.get(category, set()), (category, differ)
+    if not stage:
+        for category in CATEGORIES:
+            committed = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / f"{category}.json").to_dict())
+            differ = {k for k, v in quick[category].items() if v != committed[k]}
+            assert differ <= {"max_minutes", "num_threads", "seed"}, (category, differ)
+            assert quick[category]["max_minutes"] < 15 and quick[category]["num_threads"] == "auto"
