@@ -15,7 +15,8 @@ a JSON card beside it (``chair.json``) with the keys
   making the data, every stage and this scoring included.
 
 The checkpoint itself also holds ``latent_statistics``: where the network puts its training shapes in the
-latent space (:func:`cuboidlib.applications.latent_statistics`), for the check of :func:`cuboidlib.abstract`.
+latent space (:func:`cuboidlib.applications.latent_statistics`), for the check of :func:`cuboidlib.abstract`;
+not for a training split of at most ``latent_dim`` shapes, too few to estimate their spread.
 """
 
 from __future__ import annotations
@@ -277,10 +278,13 @@ def publish_run(
                        "rms_error_validation_before": round(before, 5),
                        "rms_error_validation_after": round(_head_rms(model, *val), 5)}
         state["model"] = model.state_dict()
-    model = CuboidAbstractionNet(config.model_config).to(device)
-    model.load_state_dict(state["model"])
-    statistics = latent_statistics(model, splits["train"].points.to(device), splits["train"].normals.to(device))
-    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"), latent_statistics=statistics)
+    extra = {}
+    if len(splits["train"]) > config.model_config.latent_dim:  # else too few codes for their covariance: no check
+        model = CuboidAbstractionNet(config.model_config).to(device)
+        model.load_state_dict(state["model"])
+        extra["latent_statistics"] = latent_statistics(model, splits["train"].points.to(device),
+                                                       splits["train"].normals.to(device))
+    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"), **extra)
     model, _ = load_model(dest, device=device)
     shapes = splits["test"]
     start = time.perf_counter()
