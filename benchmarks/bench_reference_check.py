@@ -52,7 +52,6 @@ def main() -> None:
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     splits = {c: _test_split(c) for c in CATEGORIES}
-    nets = {c: c for c in CATEGORIES}  # by name: the checkpoint holds the latent statistics
     own, off, seconds = [], [], []  # own: (ratio, latent); off: (ratio, latent, network / fit, where)
 
     def off_category(shape, net, where):
@@ -62,7 +61,8 @@ def main() -> None:
         print(f"{where}: ratio to k-means {ratio:.2f}, latent distance {latent:.1f}, to the fit "
               f"{result.chamfer / fit.chamfer:.2f}", flush=True)
 
-    for net_cat, net in nets.items():
+    for net_cat in CATEGORIES:  # networks by name: their checkpoints hold the latent statistics
+        net = net_cat
         for shape_cat, split in splits.items():
             count = args.per_split if shape_cat == net_cat else args.cross
             for i in range(min(count, len(split.points))):
@@ -82,7 +82,7 @@ def main() -> None:
     if not args.no_thin:
         for name, (points, normals) in thin_structure_set().items():
             net_cat = THIN_NETWORK[name.split("_")[0]]
-            off_category(np.concatenate([points, normals], axis=1), nets[net_cat], f"{net_cat} network on {name}")
+            off_category(np.concatenate([points, normals], axis=1), net_cat, f"{net_cat} network on {name}")
     ratios, latents = np.array([r for r, _, _ in own]), np.array([d for _, d, _ in own])
     bad = [(r, d, where) for r, d, f, where in off if f >= 1.5]
     thin = [b for b in bad if "_" in b[2]]

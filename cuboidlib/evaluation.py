@@ -128,7 +128,9 @@ def score_cuboids(
     Returns:
         A dict of JSON types: ``n_shapes``; ``chamfer``, per convention its fields, its ``convention``
         (:meth:`~cuboidlib.metrics.ChamferConvention.describe`) and ``value``; ``normal_consistency``,
-        ``normal_consistency_both``, ``normal_samples``; and the keys of :func:`segmentation_scores`.
+        ``normal_consistency_both``, ``normal_samples``; the keys of :func:`segmentation_scores`; ``concision``
+        (part name -> {"cuboids_per_instance", "instances_per_cuboid"} of :func:`~cuboidlib.metrics.part_concision`,
+        None for a part absent from the shapes; None without part labels or instances).
     """
     if not conventions:
         raise ValueError("give at least one Chamfer convention")
@@ -158,7 +160,20 @@ def score_cuboids(
         "normal_consistency_both": float(nc["both"].double().mean()),
         "normal_samples": n_samples,
         **segmentation_scores(shapes, pred, label_transfer_fraction, seed),
+        "concision": _concision(shapes, pred.labels.cpu()),
     }
+
+
+def _concision(shapes: ShapeSet, segmentation: torch.Tensor) -> dict | None:
+    """Part name -> {"cuboids_per_instance", "instances_per_cuboid"} of :func:`~cuboidlib.metrics.part_concision`
+    over all the shapes (None for a part absent from them); None without part labels or instances."""
+    if shapes.labels is None or shapes.instances is None or segmentation.shape != shapes.labels.shape:
+        return None
+    num_parts = shapes.num_parts if shapes.num_parts is not None else int(shapes.labels.max()) + 1
+    names = shapes.part_names or tuple(f"part {i}" for i in range(num_parts))
+    conc = part_concision(segmentation, shapes.labels.cpu(), shapes.instances.cpu(), num_parts)
+    return {names[i]: None if conc["cuboids_per_instance"][i].isnan() else
+            {key: None if v[i].isnan() else float(v[i]) for key, v in conc.items()} for i in range(num_parts)}
 
 
 def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer_fraction: float = 0.2,
@@ -174,10 +189,7 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
         the scored points: ``counts[t][p]`` points of part ``parts[t]`` labelled ``parts[p]``);
         ``box_distance`` (mean of :func:`~cuboidlib.metrics.segment_box_distance`, None when ``pred``
         segments other points than ``shapes``); ``reassigned`` (mean of
-        :func:`~cuboidlib.metrics.reassigned_fraction`, None without an allocation W); ``n_ac``;
-        ``concision`` (part name -> {"cuboids_per_instance", "instances_per_cuboid"} of
-        :func:`~cuboidlib.metrics.part_concision` over all the shapes, None for a part absent from them; None
-        when the shapes have no part labels or instances).
+        :func:`~cuboidlib.metrics.reassigned_fraction`, None without an allocation W); ``n_ac``.
     """
     seg, c = pred.labels.cpu(), pred.cuboids
     box = None
@@ -198,18 +210,9 @@ def segmentation_scores(shapes: ShapeSet, pred: AbstractionBatch, label_transfer
                     "seed": seed, "cuboid_labels": cuboid_labels.tolist(),
                     "confusion": {"parts": list(names[:num_parts]), "counts": confusion.tolist()}}
     reassigned = None if pred.W is None else float(reassigned_fraction(pred.W, c.exists).double().mean())
-    concision = None
-    if shapes.labels is not None and shapes.instances is not None and seg.shape == shapes.labels.shape:
-        num_parts = shapes.num_parts if shapes.num_parts is not None else int(shapes.labels.max()) + 1
-        names = shapes.part_names or tuple(f"part {i}" for i in range(num_parts))
-        conc = part_concision(seg, shapes.labels.cpu(), shapes.instances.cpu(), num_parts)
-        concision = {names[i]: None if conc["cuboids_per_instance"][i].isnan() else
-                     {key: None if v[i].isnan() else float(v[i]) for key, v in conc.items()}
-                     for i in range(num_parts)}
     return {"miou": miou, "part_iou": per_part, "label_transfer": transfer,
             "box_distance": None if box is None else float(box.double().mean()),
-            "reassigned": reassigned, "n_ac": float(number_of_existing_cuboids(c.exists)),
-            "concision": concision}
+            "reassigned": reassigned, "n_ac": float(number_of_existing_cuboids(c.exists))}
 
 
 def evaluate_model(

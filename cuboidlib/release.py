@@ -278,13 +278,9 @@ def publish_run(
                        "rms_error_validation_before": round(before, 5),
                        "rms_error_validation_after": round(_head_rms(model, *val), 5)}
         state["model"] = model.state_dict()
-    extra = {}
-    if len(splits["train"]) > config.model_config.latent_dim:  # else too few codes for their covariance: no check
-        model = CuboidAbstractionNet(config.model_config).to(device)
-        model.load_state_dict(state["model"])
-        extra["latent_statistics"] = latent_statistics(model, splits["train"].points.to(device),
-                                                       splits["train"].normals.to(device))
-    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"), **extra)
+    statistics = _training_latent_statistics(config, state["model"], splits["train"], device)
+    save_checkpoint(dest, state["config"], state["model"], step=state.get("step"),
+                    **({"latent_statistics": statistics} if statistics else {}))
     model, _ = load_model(dest, device=device)
     shapes = splits["test"]
     start = time.perf_counter()
@@ -318,7 +314,17 @@ def publish_run(
     return card
 
 
-def add_latent_statistics(checkpoint: str | os.PathLike) -> dict[str, torch.Tensor]:
+def _training_latent_statistics(config: TrainConfig, weights: dict, train, device) -> dict[str, torch.Tensor] | None:
+    """:func:`~cuboidlib.applications.latent_statistics` of the network ``weights`` on its training split, or None
+    when the split holds at most ``latent_dim`` shapes (too few codes for their covariance: no latent check)."""
+    if len(train) <= config.model_config.latent_dim:
+        return None
+    model = CuboidAbstractionNet(config.model_config).to(device)
+    model.load_state_dict(weights)
+    return latent_statistics(model, train.points.to(device), train.normals.to(device))
+
+
+def add_latent_statistics(checkpoint: str | os.PathLike) -> dict[str, torch.Tensor] | None:
     """Store :func:`~cuboidlib.applications.latent_statistics` of a released network's training split in its
     checkpoint, as :func:`publish_run` does, for a network released before it did. The weights are unchanged.
 
@@ -326,15 +332,15 @@ def add_latent_statistics(checkpoint: str | os.PathLike) -> dict[str, torch.Tens
         checkpoint: the released ``.pt`` file; it is rewritten atomically.
 
     Returns:
-        The statistics stored.
+        The statistics stored; None (the file unchanged) when the training split is too small for them.
     """
     state = load_checkpoint(checkpoint)
     config = TrainConfig.from_dict(state["config"])
-    model, _ = load_model(checkpoint)
-    train = load_splits(config)["train"]
-    statistics = latent_statistics(model, train.points, train.normals)
-    extra = {k: v for k, v in state.items() if k not in ("format", "format_version", "library_version", "config", "model")}
-    save_checkpoint(checkpoint, state["config"], state["model"], **{**extra, "latent_statistics": statistics})
+    statistics = _training_latent_statistics(config, state["model"], load_splits(config)["train"], "cpu")
+    if statistics is not None:
+        extra = {k: v for k, v in state.items()
+                 if k not in ("format", "format_version", "library_version", "config", "model")}
+        save_checkpoint(checkpoint, state["config"], state["model"], **{**extra, "latent_statistics": statistics})
     return statistics
 
 
