@@ -17,6 +17,8 @@ Every layout uses the compiled kernels where they build, as a learner gets them;
 measures the PyTorch code alone (``CUBOIDLIB_COMPILED_KERNELS=0``).
 
 ``--busy`` repeats each layout with one extra process that spins on a core for the whole measurement.
+``--env NAME=VALUE`` sets a variable for the training processes, for example the OpenMP runtime's
+``OMP_WAIT_POLICY=PASSIVE`` (threads sleep instead of spinning while they wait) or ``GOMP_SPINCOUNT``.
 Every layout runs in fresh subprocesses; the median over ``--repeats`` steps after ``--warmup`` is reported.
 
 Example::
@@ -43,6 +45,13 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _variable(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name or not value:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with both parts non-empty, got {text!r}")
+    return name, value
 
 
 def worker(spec: dict) -> None:
@@ -117,7 +126,7 @@ def run_layout(layout: str, busy: bool, args) -> dict:
         for rank in range(processes):
             spec = {"threads": threads, "world": processes, "rank": rank, "port": port, "config": str(args.config),
                     "warmup": args.warmup, "repeats": args.repeats}
-            env = {**os.environ, **({"CUBOIDLIB_COMPILED_KERNELS": "0"} if args.python_code else {})}
+            env = {**os.environ, **({"CUBOIDLIB_COMPILED_KERNELS": "0"} if args.python_code else {}), **args.env}
             procs.append(subprocess.Popen([sys.executable, __file__, "--worker", json.dumps(spec)],
                                           stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env))
         outputs = [p.communicate()[0] for p in procs]
@@ -140,15 +149,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="PROCESSESxTHREADS layouts, or auto, to measure (default: auto 1x1 1x2 2x1)")
     parser.add_argument("--python-code", action="store_true", help="without the compiled kernels")
     parser.add_argument("--busy", action="store_true", help="also measure each layout beside one busy process")
+    parser.add_argument("--env", type=_variable, action="append", default=[], metavar="NAME=VALUE",
+                        help="an environment variable for the training processes (repeatable), e.g. OMP_WAIT_POLICY=PASSIVE")
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    args.env = dict(args.env)
     if args.worker:
         worker(json.loads(args.worker))
         return 0
     print(f"config {args.config.name}, {os.cpu_count()} CPUs, {'PyTorch code' if args.python_code else 'default kernels'};"
-          f" median of {args.repeats} steps after {args.warmup}")
+          f" median of {args.repeats} steps after {args.warmup}"
+          + "".join(f"; {name}={value}" for name, value in args.env.items()))
     print(f"{'layout':>8} {'competing':>10} {'step (s)':>9} {'shapes/s':>9} {'vs quiet':>9}")
     quiet: dict[str, float] = {}
     for layout in args.layouts:

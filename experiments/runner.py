@@ -16,6 +16,10 @@ table; this module does everything else, the same way for all of them:
   experiments train with batch 8 (:data:`EXPERIMENT_BATCH_SIZE`; the checkpoints: 16), which halves
   the time per step while the cuboids start to exist at the same step (near step 350 either way).
   The model is selected on the validation split (``best.pt``) and scored on the test split.
+* **The 15-minute recipe's scale** (``--recipe 15min``, in the scripts whose :class:`Experiment` offers it):
+  the two stages of ``data_samples/checkpoints/configs/15min/`` (1000 shapes, batch 16), the first stopped
+  after :data:`FIFTEEN_MINUTE_STEPS` steps instead of 9 minutes, one thread per run (:func:`recipe_configs`);
+  the second stage's selected weights are scored. Results go to ``<name>_15min.*``.
 * **Quick scale** (``--quick``): a tiny network, 12 shapes, an eighth of the points (at least 32),
   2 steps, one seed: every script runs end to end in seconds (for tests; the numbers mean nothing).
 * **Input noise** (:func:`cuboidlib.dataset.add_noise`, Table 4): seeded isotropic Gaussian jitter of the
@@ -71,6 +75,7 @@ import torch
 from cuboidlib.checkpoint import load_model
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
 from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
+from cuboidlib.applications import checkpoint_dir
 from cuboidlib.evaluation import evaluate_baseline, predict_cuboids, score_cuboids
 from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
@@ -79,7 +84,7 @@ from cuboidlib.model import CuboidAbstractionNet
 from cuboidlib.release import git_commit
 from cuboidlib.dataset import ShapeSet, load_splits, split_indices
 from cuboidlib.dataset import add_noise, noisy_splits
-from cuboidlib.train import TrainConfig, Trainer
+from cuboidlib.train import FINETUNE_DIR, TrainConfig, Trainer
 from cuboidlib.train import course_config as train_course_config
 from summaries import (  # noqa: F401 - the scripts use them through this module
     CD_CONVENTION,
@@ -193,12 +198,41 @@ def course_config(category: str, steps: int, **changes) -> TrainConfig:
     return base.replace(**changes) if changes else base
 
 
+#: ``--recipe 15min``: the scale of the 15-minute recipe (``data_samples/checkpoints/configs/15min/``).
+FIFTEEN_MINUTES = "15min"
+#: First-stage steps of a ``--recipe 15min`` run: what the recipe's 9 minutes gave on a quiet machine
+#: (``experiments/fifteen/results/airplane_15min.json``: 2651 steps).
+FIFTEEN_MINUTE_STEPS = 2650
+#: The 15-minute recipe's number of shapes per category (its configs').
+FIFTEEN_MINUTE_SHAPES = 1000
+
+
+def recipe_configs(category: str, steps: int, **changes) -> tuple[TrainConfig, TrainConfig]:
+    """The two stages of the 15-minute recipe of ``category``, with ``steps`` first-stage steps instead of 9 minutes.
+
+    Both stages run on one thread and stop on their step counts (no time budget: runs are repeatable); the
+    second stage keeps the recipe's 500 steps. ``changes`` apply to both stages (``model`` / ``loss`` dicts are
+    merged into each stage's own). The second stage's ``init_from`` is set where it runs (:func:`execute`).
+    """
+    if category not in COURSE_NUM_CUBOIDS:
+        raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
+    folder = checkpoint_dir() / "configs" / FIFTEEN_MINUTES
+    first = TrainConfig.load_json(folder / f"{category}.json").replace(
+        max_steps=steps, max_minutes=None, num_threads=1, checkpoint_every=steps, validate_every=min(100, steps))
+    second = TrainConfig.load_json(folder / "finetune" / f"{category}.json")
+    second = second.replace(max_minutes=None, num_threads=1, init_from=None,
+                            checkpoint_every=second.max_steps)
+    return tuple(c.replace(**changes) if changes else c for c in (first, second))
+
+
 @dataclass(frozen=True)
 class Scale:
     """The scale of one invocation: course scale (default) or ``--quick``, with the command-line overrides.
 
-    steps: training steps of every run; n_shapes: shapes per collection; seeds: training seeds;
-    batch_size: shapes per training step (None: the course config's 16; quick: 4).
+    steps: training steps of every run (of its first stage, at the 15-minute recipe's scale); n_shapes: shapes
+    per collection; seeds: training seeds; batch_size: shapes per training step (None: the course config's 16;
+    quick: 4); recipe: "course" (one stage, :func:`course_config`) or "15min" (the two stages of
+    ``configs/15min/``, :func:`recipe_configs`).
     """
 
     quick: bool
@@ -206,6 +240,7 @@ class Scale:
     n_shapes: int
     seeds: tuple[int, ...]
     batch_size: int | None = None
+    recipe: str = "course"
 
     def points(self, n_points: int) -> int:
         """Points per shape: ``n_points`` at course scale, an eighth of it (at least 32) in quick runs."""
@@ -221,7 +256,25 @@ class Scale:
             model = {**QUICK_MODEL, **model}
             changes.setdefault("batch_size", 4)
         changes["n_points"] = self.points(changes.get("n_points", COURSE_SCALE["points_per_shape"]))
+        if self.recipe == FIFTEEN_MINUTES:
+            return recipe_configs(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)[0]
         return course_config(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)
+
+    def finetune_config(self, category: str, seed: int = 0, **changes) -> TrainConfig | None:
+        """The second stage of a run made by :meth:`config` with the same arguments: None at course scale, the
+        15-minute recipe's second stage (:func:`recipe_configs`) with the same ``changes`` otherwise."""
+        if self.recipe != FIFTEEN_MINUTES:
+            return None
+        changes = dict(changes)
+        model = dict(changes.pop("model", {}))
+        if self.batch_size is not None:
+            changes.setdefault("batch_size", self.batch_size)
+        changes["n_points"] = self.points(changes.get("n_points", COURSE_SCALE["points_per_shape"]))
+        if self.quick:
+            model = {**QUICK_MODEL, **model}
+            changes.setdefault("batch_size", 4)
+            changes.setdefault("max_steps", 2)
+        return recipe_configs(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)[1]
 
     def fit_config(self, num_cuboids: int, seed: int = 0) -> FitConfig:
         """Per-shape fitting (:class:`~cuboidlib.fitting.FitConfig` defaults: 300 Adam steps, Eq. (4) + the
@@ -308,6 +361,8 @@ class Run:
       (also score the network's result refined by this many steps of the per-shape fit started from it),
       ``checkpoint_sha256`` (of a "score" task: the checkpoint's content, so that ``--resume`` scores a
       replaced checkpoint anew; :func:`file_sha256`).
+    finetune: a "train" run's second stage (:meth:`Scale.finetune_config`), trained from the first stage's
+      selected weights in the training folder's ``finetune/``; its selected weights are the ones scored.
     """
 
     name: str
@@ -315,10 +370,13 @@ class Run:
     config: TrainConfig
     task: str = "train"
     options: dict = field(default_factory=dict)
+    finetune: TrainConfig | None = None
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        if self.finetune is not None and self.task != "train":
+            raise ValueError(f"a second stage (finetune) belongs to a 'train' run, not to a {self.task!r} run")
         if not self.name or any(c in self.name for c in "/\\ "):
             raise ValueError(f"run name must be non-empty without '/', '\\' or spaces, got {self.name!r}")
 
@@ -481,8 +539,10 @@ def training_key(run: Run) -> str:
 
     Two runs with the same key train the same network (training is deterministic), so one training serves
     both; they may still differ in how they are scored (``options``)."""
-    identity = json.dumps([_without_neutral_defaults(run.config.to_dict()), run.options.get("sigma_n") or 0.0],
-                          sort_keys=True)
+    identity = [_without_neutral_defaults(run.config.to_dict()), run.options.get("sigma_n") or 0.0]
+    if run.finetune is not None:  # absent for one-stage runs, so that their keys stay as they were
+        identity.append(_without_neutral_defaults(run.finetune.to_dict()))
+    identity = json.dumps(identity, sort_keys=True)
     return hashlib.sha256(identity.encode()).hexdigest()[:16]
 
 
@@ -514,12 +574,27 @@ def _train_locked(run: Run, train_dir: Path) -> dict:
         splits = noisy_splits(splits, run.options["sigma_n"], run.config.data_seed)
     # an interrupted earlier attempt continues from its last checkpoint; the trainer refuses it if the
     # configuration differs
-    resume = (train_dir / "last.pt").is_file()
-    trained = Trainer(run.config, train_dir, quiet=True, splits=splits, resume=resume).run()
-    summary = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
-               "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1), "trained_by": run.name}
+    second_dir = train_dir / FINETUNE_DIR
+    second_begun = run.finetune is not None and (second_dir / "last.pt").is_file()
+    summary = {}
+    if not second_begun:
+        resume = (train_dir / "last.pt").is_file()
+        trained = Trainer(run.config, train_dir, quiet=True, splits=splits, resume=resume).run()
+        summary = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
+                   "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1)}
+    if run.finetune is not None:
+        second = run.finetune.replace(init_from=str(train_dir / "best.pt"))
+        tuned = Trainer(second, second_dir, quiet=True, splits=splits, resume=second_begun).run()
+        summary.update(finetune_steps=tuned.step, finetune_best_step=tuned.best_step,
+                       finetune_best_val_loss=tuned.best_val, finetune_seconds=round(tuned.seconds, 1))
+    summary["trained_by"] = run.name
     write_text_atomic(done, json.dumps(summary))
     return summary
+
+
+def _selected_weights(run: Run, train_dir: Path) -> Path:
+    """The checkpoint a "train" run scores: its (last) stage's selected weights."""
+    return train_dir / (FINETUNE_DIR if run.finetune is not None else "") / "best.pt"
 
 
 def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike | None = None) -> dict:
@@ -534,6 +609,8 @@ def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike
     torch.set_num_threads(1)
     record = {"name": run.name, "key": run.key, "task": run.task, "options": run.options,
               "config": run.config.to_dict(), "run_dir": str(run_dir)}
+    if run.finetune is not None:
+        record["finetune_config"] = run.finetune.to_dict()
     try:
         if run.task == "fit":
             record["results"] = _fit_and_score(run.config, run.options)
@@ -541,7 +618,7 @@ def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike
             if run.task == "train":
                 train_dir = Path(trained_dir) / training_key(run) if trained_dir is not None else Path(run_dir)
                 record["training"] = _train(run, train_dir)
-                checkpoint = train_dir / "best.pt"
+                checkpoint = _selected_weights(run, train_dir)
             else:
                 checkpoint = Path(run.options["checkpoint"])
             record["checkpoint"] = str(checkpoint)
@@ -582,7 +659,8 @@ def finished_record(run: Run, run_dir: Path) -> dict | None:
         return None
     same = (record.get("status") == "ok" and record.get("name") == run.name and record.get("task") == run.task
             and _without_neutral_defaults(record.get("config") or {}) == _without_neutral_defaults(run.config.to_dict())
-            and json.loads(json.dumps(run.options)) == record.get("options"))
+            and json.loads(json.dumps(run.options)) == record.get("options")
+            and (None if run.finetune is None else run.finetune.to_dict()) == record.get("finetune_config"))
     return record if same else None
 
 
@@ -626,6 +704,8 @@ def estimate_seconds(run: Run) -> float:
     if c.loss_config.distance == "chamfer":
         step *= CHAMFER_FACTOR
     steps = c.max_steps if c.max_steps is not None else c.epochs * 100
+    if run.finetune is not None:
+        steps += run.finetune.max_steps
     return RUN_OVERHEAD * max(1.0, c.n_points / 1024) + steps * step
 
 
@@ -766,6 +846,8 @@ class Experiment:
     jobs. build_runs(scale, args) -> runs. report(records, scale, args) -> (summary rows, printed
     text). add_arguments(parser): script options. notes(scale, args) -> extra lines for the output.
     finish(records, scale, args, out_stem) -> extra files written (e.g. a figure) and their paths.
+    recipes: the scales its runs can take (``--recipe``; build_runs passes :meth:`Scale.finetune_config` to
+    each run where the scale has a second stage).
     """
 
     name: str
@@ -780,6 +862,7 @@ class Experiment:
     notes: Callable[[Scale, argparse.Namespace], list[str]] | None = None
     finish: Callable[[list[dict], Scale, argparse.Namespace, Path], list[Path]] | None = None
     compactness_category: str = "chair"
+    recipes: tuple[str, ...] = ("course",)
 
     def parser(self) -> argparse.ArgumentParser:
         p = _Parser(prog=f"{self.name}.py", description=self.description,
@@ -812,22 +895,40 @@ class Experiment:
                             "progress; and every training that any script finished in --runs-dir/trained with the same "
                             "configuration is read back (the scripts share the runs they have in common)")
         p.add_argument("--plan", action="store_true", help="print the runs and the estimated time, run nothing")
+        if FIFTEEN_MINUTES in self.recipes:
+            p.add_argument("--recipe", choices=self.recipes, default="course",
+                           help="course: one stage at course scale (the default); 15min: the two stages of the "
+                                f"15-minute recipe (data_samples/checkpoints/configs/15min/: {FIFTEEN_MINUTE_SHAPES} "
+                                f"shapes, batch 16, --steps first-stage steps, default {FIFTEEN_MINUTE_STEPS}, then its "
+                                "500-step second stage), one thread per run; results as <name>_15min.*")
         if self.add_arguments is not None:
             self.add_arguments(p)
         return p
 
 
 def _scale(args: argparse.Namespace, experiment: Experiment) -> Scale:
-    steps = args.steps or (2 if args.quick else experiment.default_steps)
-    shapes = args.shapes or (12 if args.quick else COURSE_SCALE["shapes_per_category"])
+    recipe = getattr(args, "recipe", "course")
+    fifteen = recipe == FIFTEEN_MINUTES
+    steps = args.steps or (2 if args.quick else FIFTEEN_MINUTE_STEPS if fifteen else experiment.default_steps)
+    shapes = args.shapes or (12 if args.quick else FIFTEEN_MINUTE_SHAPES if fifteen
+                             else COURSE_SCALE["shapes_per_category"])
     seeds = args.seeds or (1 if args.quick else experiment.default_seeds)
-    batch = args.batch_size or (None if args.quick else EXPERIMENT_BATCH_SIZE)
-    return Scale(quick=args.quick, steps=steps, n_shapes=shapes, seeds=tuple(range(seeds)), batch_size=batch)
+    batch = args.batch_size or (None if args.quick or fifteen else EXPERIMENT_BATCH_SIZE)
+    return Scale(quick=args.quick, steps=steps, n_shapes=shapes, seeds=tuple(range(seeds)), batch_size=batch,
+                 recipe=recipe)
+
+
+def _stem_suffix(scale: Scale) -> str:
+    """What the results' and runs' names add to the experiment's: ``_15min`` for the recipe, ``_quick``."""
+    return ("_" + FIFTEEN_MINUTES if scale.recipe == FIFTEEN_MINUTES else "") + ("_quick" if scale.quick else "")
 
 
 def _scale_words(scale: Scale) -> str:
     if scale.quick:
         return "Quick scale: the tiny network of runner.QUICK_MODEL."
+    if scale.recipe == FIFTEEN_MINUTES:
+        return ("The 15-minute recipe's scale (data_samples/checkpoints/configs/15min/): its two stages, the first "
+                "stopped on steps instead of 9 minutes, one thread per run.")
     return ("Course scale (runner.COURSE_SCALE): " + "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in
                                                               COURSE_SCALE.items() if k != "split") + ".")
 
@@ -850,8 +951,11 @@ def _check_runs(runs: Sequence[Run]) -> None:
 def _print_plan(experiment: Experiment, runs: list, scale, args, estimate: float) -> None:
     print(f"{experiment.title}")
     trains = any(run.task == "train" for run in runs)
-    print(f"{len(runs)} runs ({'QUICK: tiny network, numbers meaningless' if scale.quick else 'course scale'}), "
-          + (f"{scale.steps} training steps each, " if trains else "no training, ")
+    words = ("QUICK: tiny network, numbers meaningless" if scale.quick else
+             "the 15-minute recipe's scale" if scale.recipe == FIFTEEN_MINUTES else "course scale")
+    second = runs[0].finetune.max_steps if runs[0].finetune is not None else 0
+    print(f"{len(runs)} runs ({words}), "
+          + (f"{scale.steps}{f' + {second}' if second else ''} training steps each, " if trains else "no training, ")
           + f"{scale.n_shapes} shapes per collection, "
           f"seeds {list(scale.seeds)}, {args.jobs} at a time"
           + ("" if scale.quick else f"; estimated wall time on a quiet 2-core machine: {estimate / 60:.1f} min"),
@@ -861,7 +965,9 @@ def _print_plan(experiment: Experiment, runs: list, scale, args, estimate: float
 def _notes(experiment: Experiment, first: TrainConfig, scale, args) -> list[str]:
     """The notes printed under the table and stored in the results: settings, data, the experiment's own."""
     sizes = {k: len(v) for k, v in split_indices(first.n_shapes, first.split_fractions, first.split_seed).items()}
-    notes = [f"Settings: {scale.steps} training steps of batch {first.batch_size} per run (the paper: 1000 epochs of "
+    second = scale.finetune_config(first.category)
+    steps = f"{scale.steps} + {second.max_steps} (second stage)" if second is not None else f"{scale.steps}"
+    notes = [f"Settings: {steps} training steps of batch {first.batch_size} per run (the paper: 1000 epochs of "
              f"batch 32), {scale.n_shapes} shapes per collection ({sizes['train']} train / {sizes['val']} validation "
              f"/ {sizes['test']} test), {first.n_points} points per shape unless the table varies it, seeds "
              f"{list(scale.seeds)}, model selected on the validation loss. " + _scale_words(scale), DATA_NOTE]
@@ -891,17 +997,18 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
         for run in runs:
             print(f"  {run.name}: {run.task}" + ("" if scale.quick else f", ~{estimate_seconds(run) / 60:.1f} min"))
         return 0
-    stem = Path(args.out) / (experiment.name + ("_quick" if scale.quick else ""))
+    stem = Path(args.out) / (experiment.name + _stem_suffix(scale))
     started = datetime.now(timezone.utc)
-    runs_dir = Path(args.runs_dir) / experiment.name / started.strftime("%Y%m%d-%H%M%S-%f")
+    invocations = Path(args.runs_dir) / (experiment.name + _stem_suffix(scale).replace("_quick", ""))
+    runs_dir = invocations / started.strftime("%Y%m%d-%H%M%S-%f")
     if args.resume:
-        earlier = sorted(p for p in (Path(args.runs_dir) / experiment.name).glob("*-*-*") if p.is_dir())
+        earlier = sorted(p for p in invocations.glob("*-*-*") if p.is_dir())
         if earlier:
             runs_dir = earlier[-1]
             reused = sum(finished_record(r, runs_dir / r.name) is not None for r in runs)
             print(f"resuming {runs_dir}: {reused} of {len(runs)} runs already finished")
         else:
-            print(f"--resume: no earlier invocation in {Path(args.runs_dir) / experiment.name}; starting a new one")
+            print(f"--resume: no earlier invocation in {invocations}; starting a new one")
     # --resume: every training finished in --runs-dir (by any script) with the same configuration is read back
     trained_dir = Path(args.runs_dir) / TRAINED_DIR if args.resume else runs_dir / TRAINED_DIR
     info = machine()
@@ -933,7 +1040,9 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
         "started": started.isoformat(timespec="seconds"),
         "wall_seconds": round(wall, 1),
         "estimated_seconds": round(estimate, 1),
-        "settings": {"quick": scale.quick, "steps": scale.steps, "shapes": scale.n_shapes, "seeds": list(scale.seeds),
+        "settings": {"quick": scale.quick, "recipe": scale.recipe, "steps": scale.steps,
+                     "finetune_steps": None if runs[0].finetune is None else runs[0].finetune.max_steps,
+                     "shapes": scale.n_shapes, "seeds": list(scale.seeds),
                      "batch_size": first.batch_size,
                      "jobs": args.jobs, "runs_dir": str(runs_dir),
                      "reused_runs": sum(bool(r.get("reused")) for r in records),

@@ -64,3 +64,14 @@ def test_bench_time_to_quality_reports_both_stages_against_wall_time_and_the_tar
     for name in ("test mIoU %", "N_AC", "smallest part IoU %", "k-means CD / network CD", "box distance"):
         assert re.search(rf"^\s+{re.escape(name)}\s+[\d.]+\s+target .*(met|MISSED)$", proc.stdout, re.M), proc.stdout
     assert "cuboids per instance / instances per cuboid: top" in proc.stdout
+
+
+def test_bench_training_prints_each_layout_with_the_variables_it_was_given():
+    script = str(ROOT / "benchmarks" / "bench_training.py")
+    proc = subprocess.run([sys.executable, script, "--layouts", "1x1", "--repeats", "1", "--warmup", "1",
+                           "--env", "OMP_WAIT_POLICY=PASSIVE"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "; OMP_WAIT_POLICY=PASSIVE" in proc.stdout.splitlines()[0], proc.stdout
+    assert re.search(r"^\s+1x1\s+none\s+[\d.]+\s+[\d.]+\s+1\.00x$", proc.stdout, re.M), proc.stdout
+    bad = subprocess.run([sys.executable, script, "--env", "OMP_WAIT_POLICY"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "expected NAME=VALUE" in bad.stderr

@@ -242,6 +242,49 @@ def test_table5_has_exactly_the_four_lambdas_with_three_seeds():
     assert [r.config.loss_config.compactness_average for r in quick if r.key["form"] == "sum"] == [False]
 
 
+def test_table5_at_the_15_minute_recipes_scale_trains_both_stages_with_each_lambda():
+    scale, runs = _runs(table5, "--recipe", "15min")
+    assert (scale.steps, scale.n_shapes, scale.recipe) == (runner.FIFTEEN_MINUTE_STEPS, 1000, "15min")
+    recipe = ROOT / "data_samples" / "checkpoints" / "configs" / "15min"
+    first, second = TrainConfig.load_json(recipe / "chair.json"), TrainConfig.load_json(recipe / "finetune" / "chair.json")
+    assert len(runs) == 12
+    for r in runs:
+        lam, seed = r.key["lambda_1"], r.key["seed"]
+        for stage, stored in ((r.config, first), (r.finetune, second)):
+            assert stage.loss_config.lambda_compact == lam and stage.seed == seed
+            assert stage.max_minutes is None and stage.num_threads == 1 and stage.init_from is None
+            # nothing else differs from the recipe's stage but the budget, seed and lambda_1
+            same = stage.replace(loss={"lambda_compact": stored.loss_config.lambda_compact}, seed=stored.seed,
+                                 max_steps=stored.max_steps, max_minutes=stored.max_minutes,
+                                 num_threads=stored.num_threads, init_from=stored.init_from,
+                                 checkpoint_every=stored.checkpoint_every)
+            assert same == stored
+        assert r.config.max_steps == runner.FIFTEEN_MINUTE_STEPS and r.finetune.max_steps == second.max_steps
+    # a second stage changes what is trained, so the trainings are not the course scale's
+    _, course = _runs(table5)
+    assert not {runner.training_key(r) for r in runs} & {runner.training_key(r) for r in course}
+    assert all(r.finetune is None for r in course)
+    with pytest.raises(ValueError, match="second stage"):
+        runner.Run("x", {}, runs[0].config, task="score", finetune=runs[0].finetune)
+
+
+def test_a_quick_two_stage_run_scores_the_second_stages_weights(tmp_path):
+    code = runner.main(table5.EXPERIMENT, ["--recipe", "15min", "--quick", "--jobs", "1", "--out", str(tmp_path),
+                                           "--runs-dir", str(tmp_path / "runs")])
+    assert code == 0
+    data = json.loads((tmp_path / "table5_compactness_15min_quick.json").read_text())
+    assert data["settings"]["recipe"] == "15min" and data["settings"]["finetune_steps"] == 2
+    for record in data["runs"]:
+        assert record["training"]["steps"] == 2 and record["training"]["finetune_steps"] == 2
+        assert Path(record["checkpoint"]).parent.name == "finetune" and Path(record["checkpoint"]).is_file()
+        assert record["finetune_config"]["loss"]["lambda_compact"] == record["key"]["lambda_1"]
+    # --resume reads every finished run back
+    code = runner.main(table5.EXPERIMENT, ["--recipe", "15min", "--quick", "--jobs", "1", "--out", str(tmp_path),
+                                           "--runs-dir", str(tmp_path / "runs"), "--resume"])
+    again = json.loads((tmp_path / "table5_compactness_15min_quick.json").read_text())
+    assert code == 0 and again["settings"]["reused_runs"] == 4
+
+
 def test_paper_vs_code_goes_from_the_printed_losses_to_the_authors_code_one_change_at_a_time():
     _, runs = _runs(paper_vs_code)
     assert len(runs) == 8 and {r.key["seed"] for r in runs} == {0, 1}
