@@ -11,7 +11,7 @@ code), so the effective weight on Eq. (6) as printed is lambda_1 / 256 for M = 1
 cuboids) per seed, to see the collapse the printed note explains.
 
 ``--recipe 15min`` trains every cell with the two stages of the 15-minute recipe instead (1000 shapes, batch 16,
-2650 + 500 steps, lambda_1 changed in both stages) and writes ``table5_compactness_15min.*``.
+2500 + 500 steps, lambda_1 changed in both stages) and writes ``table5_compactness_15min.*``.
 """
 
 from __future__ import annotations
