@@ -979,6 +979,22 @@ def _notes(experiment: Experiment, first: TrainConfig, scale, args) -> list[str]
     return notes
 
 
+def _invocation_dir(experiment: Experiment, scale: Scale, args: argparse.Namespace, runs: Sequence[Run],
+                    started: datetime) -> Path:
+    """The folder of this invocation's runs: a new time-stamped one, or with ``--resume`` the newest earlier one."""
+    invocations = Path(args.runs_dir) / (experiment.name + _stem_suffix(scale).replace("_quick", ""))
+    runs_dir = invocations / started.strftime("%Y%m%d-%H%M%S-%f")
+    if args.resume:
+        earlier = sorted(p for p in invocations.glob("*-*-*") if p.is_dir())
+        if earlier:
+            runs_dir = earlier[-1]
+            reused = sum(finished_record(r, runs_dir / r.name) is not None for r in runs)
+            print(f"resuming {runs_dir}: {reused} of {len(runs)} runs already finished")
+        else:
+            print(f"--resume: no earlier invocation in {invocations}; starting a new one")
+    return runs_dir
+
+
 def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
     """Parse the command line, print the plan, run, print the table, write the results. Exit code:
     0, 1 if some run failed (the results are still written), 2 for bad arguments."""
@@ -999,16 +1015,7 @@ def main(experiment: Experiment, argv: Sequence[str] | None = None) -> int:
         return 0
     stem = Path(args.out) / (experiment.name + _stem_suffix(scale))
     started = datetime.now(timezone.utc)
-    invocations = Path(args.runs_dir) / (experiment.name + _stem_suffix(scale).replace("_quick", ""))
-    runs_dir = invocations / started.strftime("%Y%m%d-%H%M%S-%f")
-    if args.resume:
-        earlier = sorted(p for p in invocations.glob("*-*-*") if p.is_dir())
-        if earlier:
-            runs_dir = earlier[-1]
-            reused = sum(finished_record(r, runs_dir / r.name) is not None for r in runs)
-            print(f"resuming {runs_dir}: {reused} of {len(runs)} runs already finished")
-        else:
-            print(f"--resume: no earlier invocation in {invocations}; starting a new one")
+    runs_dir = _invocation_dir(experiment, scale, args, runs, started)
     # --resume: every training finished in --runs-dir (by any script) with the same configuration is read back
     trained_dir = Path(args.runs_dir) / TRAINED_DIR if args.resume else runs_dir / TRAINED_DIR
     info = machine()
