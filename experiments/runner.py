@@ -246,8 +246,8 @@ class Scale:
         """Points per shape: ``n_points`` at course scale, an eighth of it (at least 32) in quick runs."""
         return max(32, n_points // 8) if self.quick else n_points
 
-    def config(self, category: str, seed: int = 0, **changes) -> TrainConfig:
-        """:func:`course_config` at this scale (quick: the tiny network and batch 4), with ``changes``."""
+    def _changes(self, changes: dict) -> dict:
+        """``changes`` with this scale's batch size, points and (quick) tiny network filled in."""
         changes = dict(changes)
         model = dict(changes.pop("model", {}))
         if self.batch_size is not None:
@@ -256,25 +256,25 @@ class Scale:
             model = {**QUICK_MODEL, **model}
             changes.setdefault("batch_size", 4)
         changes["n_points"] = self.points(changes.get("n_points", COURSE_SCALE["points_per_shape"]))
+        return {**changes, "model": model, "n_shapes": self.n_shapes}
+
+    def config(self, category: str, seed: int = 0, **changes) -> TrainConfig:
+        """:func:`course_config` at this scale (quick: the tiny network and batch 4), with ``changes``; at the
+        15-minute recipe's scale, the first stage of :func:`recipe_configs`."""
+        changes = self._changes(changes)
         if self.recipe == FIFTEEN_MINUTES:
-            return recipe_configs(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)[0]
-        return course_config(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)
+            return recipe_configs(category, self.steps, seed=seed, **changes)[0]
+        return course_config(category, self.steps, seed=seed, **changes)
 
     def finetune_config(self, category: str, seed: int = 0, **changes) -> TrainConfig | None:
         """The second stage of a run made by :meth:`config` with the same arguments: None at course scale, the
-        15-minute recipe's second stage (:func:`recipe_configs`) with the same ``changes`` otherwise."""
+        15-minute recipe's second stage (:func:`recipe_configs`) with the same ``changes`` otherwise (quick: 2 steps)."""
         if self.recipe != FIFTEEN_MINUTES:
             return None
-        changes = dict(changes)
-        model = dict(changes.pop("model", {}))
-        if self.batch_size is not None:
-            changes.setdefault("batch_size", self.batch_size)
-        changes["n_points"] = self.points(changes.get("n_points", COURSE_SCALE["points_per_shape"]))
+        changes = self._changes(changes)
         if self.quick:
-            model = {**QUICK_MODEL, **model}
-            changes.setdefault("batch_size", 4)
             changes.setdefault("max_steps", 2)
-        return recipe_configs(category, self.steps, n_shapes=self.n_shapes, seed=seed, model=model, **changes)[1]
+        return recipe_configs(category, self.steps, seed=seed, **changes)[1]
 
     def fit_config(self, num_cuboids: int, seed: int = 0) -> FitConfig:
         """Per-shape fitting (:class:`~cuboidlib.fitting.FitConfig` defaults: 300 Adam steps, Eq. (4) + the
