@@ -28,6 +28,7 @@ from .config import resolve_device, torch_threads
 from .fitting import FitConfig, fit_cuboids, tighten_cuboids
 from .geometry import Cuboids
 from .io import PointCloud, load_point_cloud, validate_point_cloud
+from .merging import merge_split_cuboids
 from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
 from .model import CuboidAbstractionNet
 from .normalization import normalize
@@ -263,9 +264,9 @@ def _result(pc, cuboids: Cuboids, segmentation: torch.Tensor, points: np.ndarray
 
 
 def _by_network(pc, net, state, path, up, front, threshold, centroids, refine, fit_config, part_names, source,
-                seed, progress, ran=None) -> Abstraction:
-    """The network's result in one frame, refined if asked; ``ran``: (batch, points) of this frame when
-    the network already ran on it."""
+                seed, progress, merge=None, ran=None) -> Abstraction:
+    """The network's result in one frame, refined and merged if asked; ``ran``: (batch, points) of this frame
+    when the network already ran on it."""
     rotation = frame_rotation(up, front)
     batch, points = ran if ran is not None else _network_pass(pc, net, state, [rotation], threshold, centroids)
     method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
@@ -275,6 +276,11 @@ def _by_network(pc, net, state, path, up, front, threshold, centroids, refine, f
     if refine:
         batch, refined = _refined(points[0], _turned(pc.normals, rotation), batch, refine, fit_config, seed, progress)
         method.update(refined)
+    if merge is not None:
+        before = int(batch.cuboids.existing().sum())
+        batch = merge_split_cuboids(batch, max_growth=merge)
+        method["merge"] = {"function": "cuboidlib.merging.merge_split_cuboids", "max_growth": merge,
+                           "cuboids": {"before": before, "after": int(batch.cuboids.existing().sum())}}
     return _result(pc, batch.cuboids.to(device="cpu"), batch.labels[0].cpu(), points[0], rotation, up, front,
                    method, part_names, source, seed)
 
@@ -419,6 +425,7 @@ def abstract(
     refine: int = 0,
     check: bool = False,
     fallback: bool = False,
+    merge: float | None = None,
 ) -> Abstraction:
     """Cuboid abstraction and segmentation of one shape, in its own coordinates.
 
@@ -461,6 +468,9 @@ def abstract(
         fallback: with a network, return the per-shape fit (``model=None``, default FitConfig, same frame)
             instead when the check finds the network that much worse (it still warns, and the network's
             record is kept in ``method["fallback"]``).
+        merge: with a network, last merge the cuboids that cut one part into pieces
+            (:func:`cuboidlib.merging.merge_split_cuboids` with this ``max_growth``, e.g. 0.25; recorded in
+            ``method["merge"]``); None (default) keeps the network's cuboids.
 
     Returns:
         An :class:`~cuboidlib.results.Abstraction` (cuboids normalised, with the normalisation to write
@@ -468,11 +478,11 @@ def abstract(
     """
     with torch_threads(1):  # one shape: one thread (see cuboidlib.config.torch_threads)
         return _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part_names, device, progress,
-                         up, front, refine, check, fallback)
+                         up, front, refine, check, fallback, merge)
 
 
 def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part_names, device, progress, up, front,
-              refine, check=True, fallback=False) -> Abstraction:
+              refine, check=True, fallback=False, merge=None) -> Abstraction:
     """:func:`abstract` after its thread count is set."""
     if centers not in ("auto", "predicted", "allocation"):
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
@@ -480,6 +490,10 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         raise ValueError(f"refine must be a non-negative number of steps, got {refine!r}")
     if not isinstance(check, bool) or not isinstance(fallback, bool):
         raise ValueError(f"check and fallback must be True or False, got {check!r} and {fallback!r}")
+    if merge is not None and (isinstance(merge, bool) or not isinstance(merge, (int, float)) or not merge >= 0):
+        raise ValueError(f"merge must be None or a growth >= 0, got {merge!r}")
+    if model is None and merge is not None:
+        raise ValueError("merge acts on a network's cuboids: give a model")
     if model is None and refine:
         raise ValueError("refine starts the fit from a network's cuboids: give a model (model=None fits from scratch)")
     if model is None and up == "auto":
@@ -502,7 +516,7 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         raise ValueError(f"{source or 'shape'}: has {len(pc)} points; the network needs more than k = {net.config.k}")
     centroids = _centroids(centers, state)
     one_pass = dict(threshold=threshold, centroids=centroids, refine=refine, fit_config=fit_config,
-                    part_names=part_names, source=source, seed=seed, progress=progress)
+                    part_names=part_names, source=source, seed=seed, progress=progress, merge=merge)
     if up is not None and up != "auto":
         chosen = (up, front)
         result = _by_network(pc, net, state, path, up, front, **one_pass)

@@ -299,6 +299,10 @@ def _add_evaluate_command(sub) -> None:
                    "layout or a folder of mesh / point cloud files (labels score the mIoU when the files have them)")
     p.add_argument("--category", help="the category to read from --data-dir (default: the checkpoint's)")
     p.add_argument("--baseline", action="store_true", help="also score the k-means + oriented-box baseline")
+    p.add_argument("--merge", type=_growth, nargs="?", const=0.25, metavar="GROWTH",
+                   help="also score the network's cuboids after merging the pieces of one part: two segments merge "
+                   "when the box around both is at most GROWTH larger than their two boxes (default 0.25; "
+                   "cuboidlib.merging)")
     p.add_argument("--baseline-boxes", type=int,
                    help="boxes per shape for the baseline (default: the network's N_AC, rounded)")
     p.add_argument("--json", metavar="OUT", help="also write the results as JSON to OUT")
@@ -340,6 +344,9 @@ def _cmd_evaluate(args) -> int:
     name = f"network (step {step}{', centroid centres' if centroids else ''})"
     results = [evaluate_model(model, shapes, batch_size=args.batch_size, name=name,
                               centers_from_allocation=centroids, **options)]
+    if args.merge is not None:
+        results.append(evaluate_model(model, shapes, batch_size=args.batch_size, centers_from_allocation=centroids,
+                                      name=f"{name}, merged ({args.merge:g})", merge_growth=args.merge, **options))
     if args.baseline:
         boxes = args.baseline_boxes or max(1, round(results[0]["n_ac"]))
         results.append(evaluate_baseline(shapes, boxes, **options))
@@ -406,6 +413,17 @@ def _threshold(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}") from None
     if not 0 <= value < 1:
         raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}")
+    return value
+
+
+def _growth(text: str) -> float:
+    """An argparse type: the largest growth of :func:`cuboidlib.merging.merge_split_cuboids`, a number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
     return value
 
 
@@ -771,6 +789,9 @@ def _add_abstract_command(sub) -> None:
                    help="then this many steps of the per-shape fit, started from the network's cuboids and "
                    "allocation: tighter cuboids that keep the network's cuboid slots, and so its parts "
                    "(default 0: the network alone; 100 takes about a second)")
+    p.add_argument("--merge", type=_growth, nargs="?", const=0.25, metavar="GROWTH",
+                   help="last merge the cuboids that cut one part into pieces: two merge when the box around both "
+                   "is at most GROWTH larger than the two (default 0.25; cuboidlib.merging)")
     _add_shape_options(p)
     p.set_defaults(func=_cmd_abstract)
 
@@ -785,7 +806,7 @@ def _cmd_abstract(args) -> int:
         def one(path: str, progress: bool):
             return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
                             centers=args.centers, part_names=args.part_names, device=args.device, up=args.up,
-                            front=args.front, refine=args.refine, progress=progress, check=True)
+                            front=args.front, refine=args.refine, progress=progress, check=True, merge=args.merge)
 
         return one
 

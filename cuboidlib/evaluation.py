@@ -28,6 +28,7 @@ import torch
 from .results import AbstractionBatch
 from .applications import abstract_shapes
 from .baseline import fit_cluster_boxes
+from .merging import merge_split_cuboids
 from .metrics import (
     ChamferConvention,
     cuboid_chamfer_distance,
@@ -224,6 +225,7 @@ def evaluate_model(
     batch_size: int = 32,
     name: str = "network",
     centers_from_allocation: bool = False,
+    merge_growth: float | None = None,
 ) -> dict:
     """Metrics of the network on ``shapes``: :func:`predict_cuboids`, then :func:`score_cuboids`.
 
@@ -233,15 +235,20 @@ def evaluate_model(
         batch_size: shapes per forward pass.
         name: the result's ``method``.
         centers_from_allocation: the value the network was trained with (:func:`predict_cuboids`).
+        merge_growth: None scores the network's cuboids; a number first merges the pieces of one part,
+            :func:`cuboidlib.merging.merge_split_cuboids` with that ``max_growth``.
 
     Returns:
-        The dict of :func:`score_cuboids` and ``method``, ``num_cuboids`` (M) and
-        ``shapes_without_existing_cuboid``.
+        The dict of :func:`score_cuboids` and ``method``, ``num_cuboids`` (M),
+        ``shapes_without_existing_cuboid`` and ``merge_growth``.
     """
     pred, fallback = predict_cuboids(model, shapes, batch_size, centers_from_allocation)
+    if merge_growth is not None:
+        pred = merge_split_cuboids(pred, max_growth=merge_growth)
     result = {"method": name, "num_cuboids": pred.num_segments}
     result.update(score_cuboids(shapes, pred, label_transfer_fraction, conventions, seed))
     result["shapes_without_existing_cuboid"] = fallback
+    result["merge_growth"] = merge_growth
     return result
 
 

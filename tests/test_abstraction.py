@@ -1,5 +1,6 @@
 import ast
 import json
+import math
 import os
 import subprocess
 import sys
@@ -182,6 +183,19 @@ def test_up_and_front_must_be_axes_at_right_angles():
         frame_rotation("w")
     with pytest.raises(ValueError, match="must be perpendicular"):
         frame_rotation("z", "-z")
+
+
+def test_merging_a_network_result_records_the_cuboids_before_and_after(table_cloud):
+    path, _ = table_cloud
+    network = cuboidlib.abstract(path, model="table", up="y")
+    merged = cuboidlib.abstract(path, model="table", up="y", merge=math.inf)  # every cuboid into one
+    assert merged.method["merge"]["max_growth"] == math.inf and "merge" not in network.method
+    assert merged.method["merge"]["cuboids"] == {"before": int(network.cuboids.exists.sum()), "after": 1}
+    assert int(merged.cuboids.exists.sum()) == 1 and len(np.unique(merged.labels)) == 1
+    with pytest.raises(ValueError, match="merge acts on a network's cuboids"):
+        cuboidlib.abstract(path, model=None, merge=0.25)
+    with pytest.raises(ValueError, match="merge must be None or a growth >= 0"):
+        cuboidlib.abstract(path, model="table", merge=-0.5)
 
 
 def test_refining_a_network_result_keeps_its_cuboid_slots_and_records_the_steps(table_cloud):

@@ -213,14 +213,20 @@ def test_evaluate_command_scores_the_test_split(tmp_path, capsys, monkeypatch):
         torch.set_num_threads(threads)
     out = tmp_path / "eval.json"
     code = main(["evaluate", str(tmp_path / "run" / "best.pt"), "--baseline", "--json", str(out), "--samples", "256",
-                 "--chamfer-norm", "squared_l2", "--chamfer-norm", "l1", "--device", "cpu"])
+                 "--chamfer-norm", "squared_l2", "--chamfer-norm", "l1", "--device", "cpu", "--merge"])
     assert code == 0
     text = capsys.readouterr().out
     assert "network (step 2)" in text and "k-means boxes" in text and "[2] Chamfer distance: L1" in text
+    assert "network (step 2), merged (0.25)" in text
     data = json.loads(out.read_text())
     n_test = len(load_splits(config)["test"])
-    assert data["split"] == "test" and [r["n_shapes"] for r in data["results"]] == [n_test, n_test]
-    assert data["results"][1]["num_cuboids"] == max(1, round(data["results"][0]["n_ac"]))
+    assert data["split"] == "test" and [r["n_shapes"] for r in data["results"]] == [n_test] * 3
+    network, merged, kmeans = data["results"]
+    assert kmeans["num_cuboids"] == max(1, round(network["n_ac"]))  # as many boxes as the network's cuboids
+    assert network["merge_growth"] is None and merged["merge_growth"] == 0.25 and merged["n_ac"] <= network["n_ac"]
+    with pytest.raises(SystemExit) as bad:
+        main(["evaluate", str(tmp_path / "run" / "best.pt"), "--merge", "-1"])
+    assert bad.value.code == 2 and "argument --merge: expected a number >= 0, got '-1'" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "missing.pt")]) == 2
     assert "no such checkpoint" in capsys.readouterr().err
     assert os.path.exists(tmp_path / "run" / "last.pt")
