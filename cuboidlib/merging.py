@@ -40,18 +40,9 @@ def _extents(centers: torch.Tensor, R: torch.Tensor, half_sizes: torch.Tensor) -
     return local.amin(dim=2), local.amax(dim=2)
 
 
-def merge_growth(centers: torch.Tensor, R: torch.Tensor, half_sizes: torch.Tensor,
+def _pair_growth(centers: torch.Tensor, R: torch.Tensor, half_sizes: torch.Tensor,
                  pad: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """growth(a, b) of every pair of one shape's cuboids, and the frame that gives it (no checks: inner step).
-
-    Args:
-        centers: (M, 3); R: (M, 3, 3) rotation matrices, columns the local axes; half_sizes: (M, 3).
-        pad: added to every extent, in the cuboids' units.
-
-    Returns:
-        (growth, frame), (M, M) each: growth[a, b] as the module defines it (inf on the diagonal);
-        frame[a, b], a or b, the cuboid whose frame gives the smaller box around both.
-    """
+    """:func:`merge_growth` without its checks (the greedy loop's inner step)."""
     m = centers.shape[0]
     lo, hi = _extents(centers, R, half_sizes)
     own = (2 * half_sizes + pad).prod(-1)  # (M,)
@@ -59,10 +50,35 @@ def merge_growth(centers: torch.Tensor, R: torch.Tensor, half_sizes: torch.Tenso
     union = (torch.maximum(hi[:, :, None], hi[:, None]) - torch.minimum(lo[:, :, None], lo[:, None]) + pad).prod(-1)
     in_a = union.diagonal(dim1=0, dim2=1).T  # in_a[a, b] = union[a, a, b]
     in_b = union.diagonal(dim1=0, dim2=2)  # in_b[a, b] = union[b, a, b]
-    index = torch.arange(m)
+    index = torch.arange(m, device=centers.device)
     frame = torch.where(in_a <= in_b, index[:, None].expand(m, m), index[None].expand(m, m))
     growth = torch.minimum(in_a, in_b) / (own[:, None] + own[None]) - 1
-    return growth.masked_fill(torch.eye(m, dtype=torch.bool), torch.inf), frame
+    return growth.masked_fill(torch.eye(m, dtype=torch.bool, device=centers.device), torch.inf), frame
+
+
+def merge_growth(centers, R, half_sizes, pad: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """growth(a, b) of every pair of one shape's cuboids (the module's formula), and the frame that gives it.
+
+    Args:
+        centers: (M, 3) the cuboids' centres.
+        R: (M, 3, 3) their rotation matrices, columns the local axes (:meth:`Cuboids.rotation_matrices`).
+        half_sizes: (M, 3) positive half sizes.
+        pad: added to every extent, in the cuboids' units, >= 0.
+
+    Returns:
+        (growth, frame), (M, M) each: growth[a, b], symmetric, inf on the diagonal; frame[a, b], a or b, the
+        cuboid whose frame gives the smaller box around both.
+    """
+    centers, R, half_sizes = (torch.as_tensor(t) for t in (centers, R, half_sizes))
+    m = centers.shape[0] if centers.dim() == 2 else -1
+    if centers.shape != (m, 3) or R.shape != (m, 3, 3) or half_sizes.shape != (m, 3):
+        raise ValueError(f"expected centers (M, 3), R (M, 3, 3) and half_sizes (M, 3) of one M; got "
+                         f"{tuple(centers.shape)}, {tuple(R.shape)} and {tuple(half_sizes.shape)}")
+    if isinstance(pad, bool) or not isinstance(pad, (int, float)) or not pad >= 0:
+        raise ValueError(f"pad must be a number >= 0, got {pad!r}")
+    if not (torch.isfinite(centers).all() and torch.isfinite(R).all() and (half_sizes > 0).all()):
+        raise ValueError("centers and R must be finite and half_sizes positive")
+    return _pair_growth(centers, R, half_sizes, float(pad))
 
 
 def _merge_shape(labels, centers, quaternions, R, half_sizes, exists, max_growth: float, pad: float):
@@ -71,7 +87,7 @@ def _merge_shape(labels, centers, quaternions, R, half_sizes, exists, max_growth
         t.clone() for t in (labels, centers, quaternions, R, half_sizes, exists))
     points = torch.bincount(labels, minlength=len(centers))
     while int(exists.sum()) > 1:
-        growth, frame = merge_growth(centers, R, half_sizes, pad)
+        growth, frame = _pair_growth(centers, R, half_sizes, pad)
         growth[~exists] = torch.inf
         growth[:, ~exists] = torch.inf
         a, b = divmod(int(growth.argmin()), len(centers))

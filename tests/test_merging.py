@@ -122,6 +122,13 @@ def test_shapes_merge_independently_and_labels_always_name_existing_cuboids():
 
 def test_bad_inputs_are_named():
     batch = _batch(LEGS)
+    c = batch.cuboids
+    with pytest.raises(ValueError, match=r"expected centers \(M, 3\), R \(M, 3, 3\) and half_sizes \(M, 3\)"):
+        merge_growth(c.centers[0], c.rotation_matrices()[0][:2], c.half_sizes[0], 0.0)
+    with pytest.raises(ValueError, match="pad must be a number >= 0"):
+        merge_growth(c.centers[0], c.rotation_matrices()[0], c.half_sizes[0], -1.0)
+    with pytest.raises(ValueError, match="half_sizes positive"):
+        merge_growth(c.centers[0], c.rotation_matrices()[0], 0 * c.half_sizes[0], 0.0)
     with pytest.raises(TypeError, match="AbstractionBatch"):
         merge_split_cuboids(batch.cuboids)
     with pytest.raises(ValueError, match="max_growth must be a number >= 0"):
@@ -130,7 +137,6 @@ def test_bad_inputs_are_named():
         merge_split_cuboids(batch, pad=float("nan"))
     with pytest.raises(ValueError, match=r"labels must be \(B, N\) with B = 1"):
         merge_split_cuboids(AbstractionBatch(batch.cuboids, batch.labels[0]))
-    c = batch.cuboids
     gone = AbstractionBatch(Cuboids(c.centers, c.quaternions, c.half_sizes, torch.tensor([[True, False, True]])),
                             batch.labels)
     with pytest.raises(ValueError, match="must name an existing cuboid"):
