@@ -1,5 +1,7 @@
 """The ``cuboidlib`` command-line tool: every subcommand and option in one place.
 
+One file, because the command line is one parser: its subcommands share option helpers and the error rule below.
+
 Each subcommand is a ``_add_*_command`` (its options) and a ``_cmd_*`` handler, a thin layer over the
 library. Errors a user can fix are printed as one line with a non-zero exit code (``--traceback``: the full
 traceback). The handlers import the library inside, as marked: it imports torch (seconds), which --help,

@@ -1,5 +1,7 @@
 """The data: a torch ``Dataset`` over procedural collections or files, in-memory shape sets, splits, noise.
 
+One file, because every path to training data ends in the same ShapeSet and splits.
+
 :class:`PointCloudDataset` reads one shape at a time; :class:`ShapeSet` holds many as stacked tensors
 (what training and evaluation use); :func:`split_indices` assigns shapes to train / validation / test by
 a seeded permutation, and :func:`load_splits` does both for a :class:`DataConfig` (a procedural

@@ -1,9 +1,9 @@
 """Writing cuboid abstractions to files: JSON, meshes (GLB, OBJ, PLY), segmented point clouds, HTML views.
 
-The formats share one module because they share two rules. Colour: cuboid m is ``PALETTE[m]``
-(:mod:`cuboidlib.viz`) everywhere, as in the lessons' figures. Coordinates: shapes are abstracted in
-normalised coordinates (bounding box centred at the origin, diagonal 1, :mod:`cuboidlib.normalization`), and
-a cuboid goes back to the input's coordinates by
+The formats share one module because they share two rules (the reason for its length). Colour: cuboid m is
+``PALETTE[m]`` (:mod:`cuboidlib.viz`) everywhere, as in the lessons' figures. Coordinates: shapes are
+abstracted in normalised coordinates (bounding box centred at the origin, diagonal 1,
+:mod:`cuboidlib.normalization`), and a cuboid goes back to the input's coordinates by
 
     centre_original = centre * scale + center,   size_original = size * scale,   rotation unchanged
 

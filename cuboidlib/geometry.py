@@ -1,5 +1,7 @@
 """Cuboid geometry (Sec. 3): rotations, local frames, faces, corners, meshes and surface sampling.
 
+One file, because every cuboid operation shares the frame, face and corner conventions below.
+
 A cuboid C_m is the paper's triple (t, r, s): ``centers`` t (B, M, 3), unit ``quaternions`` r (B, M, 4)
 in (w, x, y, z) order, and ``half_sizes`` s (B, M, 3), so that it spans [-s_x, s_x] x [-s_y, s_y] x
 [-s_z, s_z] in its own frame. A world point is p = R l + t, the columns of R = R(r) being the local axes.

@@ -40,20 +40,24 @@ def _extents(centers: torch.Tensor, R: torch.Tensor, half_sizes: torch.Tensor) -
     return local.amin(dim=2), local.amax(dim=2)
 
 
-def _pair_growth(centers: torch.Tensor, R: torch.Tensor, half_sizes: torch.Tensor,
+def _pair_growth(lo: torch.Tensor, hi: torch.Tensor, half_sizes: torch.Tensor,
                  pad: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`merge_growth` without its checks (the greedy loop's inner step)."""
-    m = centers.shape[0]
-    lo, hi = _extents(centers, R, half_sizes)
+    """:func:`merge_growth` from the extents of :func:`_extents`, without checks (the greedy loop's inner step)."""
+    m = half_sizes.shape[0]
     own = (2 * half_sizes + pad).prod(-1)  # (M,)
     # union[f, a, b]: the volume of the box around cuboids a and b in frame f
     union = (torch.maximum(hi[:, :, None], hi[:, None]) - torch.minimum(lo[:, :, None], lo[:, None]) + pad).prod(-1)
     in_a = union.diagonal(dim1=0, dim2=1).T  # in_a[a, b] = union[a, a, b]
     in_b = union.diagonal(dim1=0, dim2=2)  # in_b[a, b] = union[b, a, b]
-    index = torch.arange(m, device=centers.device)
+    index = torch.arange(m, device=half_sizes.device)
     frame = torch.where(in_a <= in_b, index[:, None].expand(m, m), index[None].expand(m, m))
     growth = torch.minimum(in_a, in_b) / (own[:, None] + own[None]) - 1
-    return growth.masked_fill(torch.eye(m, dtype=torch.bool, device=centers.device), torch.inf), frame
+    return growth.masked_fill(torch.eye(m, dtype=torch.bool, device=half_sizes.device), torch.inf), frame
+
+
+def _check_non_negative(value, name: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ValueError(f"{name} must be a number >= 0, got {value!r}")
 
 
 def merge_growth(centers, R, half_sizes, pad: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -74,11 +78,10 @@ def merge_growth(centers, R, half_sizes, pad: float) -> tuple[torch.Tensor, torc
     if centers.shape != (m, 3) or R.shape != (m, 3, 3) or half_sizes.shape != (m, 3):
         raise ValueError(f"expected centers (M, 3), R (M, 3, 3) and half_sizes (M, 3) of one M; got "
                          f"{tuple(centers.shape)}, {tuple(R.shape)} and {tuple(half_sizes.shape)}")
-    if isinstance(pad, bool) or not isinstance(pad, (int, float)) or not pad >= 0:
-        raise ValueError(f"pad must be a number >= 0, got {pad!r}")
+    _check_non_negative(pad, "pad")
     if not (torch.isfinite(centers).all() and torch.isfinite(R).all() and (half_sizes > 0).all()):
         raise ValueError("centers and R must be finite and half_sizes positive")
-    return _pair_growth(centers, R, half_sizes, float(pad))
+    return _pair_growth(*_extents(centers, R, half_sizes), half_sizes, float(pad))
 
 
 def _merge_shape(labels, centers, quaternions, R, half_sizes, exists, max_growth: float, pad: float):
@@ -87,7 +90,8 @@ def _merge_shape(labels, centers, quaternions, R, half_sizes, exists, max_growth
         t.clone() for t in (labels, centers, quaternions, R, half_sizes, exists))
     points = torch.bincount(labels, minlength=len(centers))
     while int(exists.sum()) > 1:
-        growth, frame = _pair_growth(centers, R, half_sizes, pad)
+        lo, hi = _extents(centers, R, half_sizes)
+        growth, frame = _pair_growth(lo, hi, half_sizes, pad)
         growth[~exists] = torch.inf
         growth[:, ~exists] = torch.inf
         a, b = divmod(int(growth.argmin()), len(centers))
@@ -96,7 +100,6 @@ def _merge_shape(labels, centers, quaternions, R, half_sizes, exists, max_growth
         if points[b] > points[a]:  # the merged cuboid keeps the index of the one that held more points
             a, b = b, a
         f = int(frame[a, b])
-        lo, hi = _extents(centers, R, half_sizes)
         lo, hi = torch.minimum(lo[f, a], lo[f, b]), torch.maximum(hi[f, a], hi[f, b])
         centers[a] = centers[f] + R[f] @ (0.5 * (lo + hi))
         quaternions[a], R[a], half_sizes[a] = quaternions[f], R[f], 0.5 * (hi - lo)
@@ -129,9 +132,8 @@ def merge_split_cuboids(abstraction: AbstractionBatch, max_growth: float = 0.25,
     """
     if not isinstance(abstraction, AbstractionBatch):
         raise TypeError(f"abstraction must be an AbstractionBatch, got {type(abstraction).__name__}")
-    for name, value in (("max_growth", max_growth), ("pad", pad)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
-            raise ValueError(f"{name} must be a number >= 0, got {value!r}")
+    _check_non_negative(max_growth, "max_growth")
+    _check_non_negative(pad, "pad")
     c = abstraction.cuboids
     b, m = c.batch_size, c.num_cuboids
     exists = c.existing().cpu()

@@ -1,5 +1,7 @@
 """The network of the paper (Sec. 3.1-3.3, Fig. 3), readable: feature embedding, shape abstraction, segmentation.
 
+One file, because the network's blocks are read together: each block's inputs are the last one's outputs.
+
 Shapes (batch-first): points (B, N, 3); cuboid centers (B, M, 3), unit quaternions (B, M, 4) in
 (w, x, y, z) order, half sizes (B, M, 3); allocation W (B, N, M), a softmax over the cuboids, i.e. the
 transpose of the paper's W_{m,n}. Blocks are named after the paper: :class:`EdgeConv`, :class:`GlobalFeature`

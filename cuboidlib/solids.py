@@ -1,5 +1,7 @@
 """Analytic solids that the procedural shapes of :mod:`cuboidlib.shapes` are assembled from.
 
+One file, because every solid answers the same five questions, and the shapes use them side by side.
+
 Every :class:`Solid` reports its surface area, samples area-uniform surface points with outward
 unit normals, evaluates a signed distance (negative inside), maps itself by the normalisation
 ``x -> (x - center) / scale`` of :mod:`cuboidlib.normalization`, and builds a ``trimesh.Trimesh``.

@@ -1,5 +1,7 @@
 """A 2D toy of cuboid abstraction: oriented rectangles fitted to boundary points (lesson 01).
 
+One file, because the toy is lesson 01's whole 2D world: its geometry, losses and fit belong together.
+
 It reproduces the ambiguity of the paper's Fig. 2 and the degenerate solutions of Fig. 9, and shows
 how the normal-aware distance (Eq. (5), Sec. 3.4.1), the soft allocation (Eq. (3)-(4)) and the
 compactness loss (Eq. (6)) avoid them. Conventions mirror the 3D ones with one dimension less:
