@@ -61,11 +61,19 @@ class Distributed:
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
         self.owns_group = True
 
-    def stop(self) -> None:
-        """Destroy the process group if this object started it."""
+    def stop(self, wait: bool = True) -> None:
+        """Destroy the process group if this object started it.
+
+        Args:
+            wait: first wait until every process gets here (a barrier), so that no process tears the group
+                down while rank 0 still validates and saves; False on the way out of an error, where another
+                process may never get here.
+        """
         import torch.distributed as dist
 
         if self.owns_group and dist.is_initialized():
+            if wait:
+                dist.barrier()
             dist.destroy_process_group()
             self.owns_group = False
 

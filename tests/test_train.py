@@ -608,6 +608,28 @@ def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, c
         Trainer(TrainConfig.load_json(cfg), out, resume=True, quiet=True)
 
 
+def test_a_process_waits_for_the_others_before_it_tears_their_group_down(monkeypatch):
+    # Rank 1 ends its loop while rank 0 still validates and saves; tearing the group down then can abort rank 1.
+    import torch.distributed as dist
+
+    from cuboidlib.runs import Distributed
+
+    calls = []
+    monkeypatch.setattr(dist, "is_initialized", lambda: True)
+    monkeypatch.setattr(dist, "barrier", lambda: calls.append("barrier"))
+    monkeypatch.setattr(dist, "destroy_process_group", lambda: calls.append("destroy"))
+    group = Distributed()
+    group.stop()
+    assert calls == []  # a group it did not start is left alone
+    group.owns_group = True
+    group.stop()
+    assert calls == ["barrier", "destroy"] and not group.owns_group
+    calls.clear()
+    group.owns_group = True
+    group.stop(wait=False)  # on the way out of an error: the other process may never reach a barrier
+    assert calls == ["destroy"]
+
+
 def test_both_stages_in_one_torchrun_command_share_the_processes_and_the_card_says_so(tmp_path, tiny):
     # `torchrun --nproc_per_node=2 -m cuboidlib train --config ... --finetune ... --release ...`, by its variables
     from cuboidlib.release import read_card
