@@ -307,6 +307,29 @@ def _flat(d: dict, prefix: str = "") -> dict:
     return out
 
 
+def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
+    """experiments/fifteen/results/second_stage/<first stage>--<name>.json: the cards named "recipe" trained the
+    recipe's second stage and no other did; each began from a first stage kept in results/first_stage/; and
+    experiments/fifteen/README.md shows the table that second_stage_table.py makes of them."""
+    import importlib.util
+
+    fifteen = ROOT / "experiments" / "fifteen"
+    spec = importlib.util.spec_from_file_location("second_stage_table", fifteen / "second_stage_table.py")
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    cards = sorted((fifteen / "results" / "second_stage").glob("*.json"))
+    assert len(cards) >= 2
+    for path in cards:
+        first, name = path.stem.split("--")
+        changed = table.changed_settings(json.loads(path.read_text())["config"])
+        assert (changed == "the recipe") == (name == "recipe"), (path.name, changed)
+        assert (fifteen / "results" / "first_stage" / f"{first}.pt").is_file(), path.name
+    block = re.search(r"<!-- second-stage:start -->\n(.*?)\n<!-- second-stage:end -->",
+                      (fifteen / "README.md").read_text(), re.S)
+    assert block is not None
+    assert block.group(1).strip() == "\n".join([table.HEADER, table.RULE] + [table.row(c) for c in cards])
+
+
 @pytest.mark.parametrize("stage", ["", "finetune/"])
 def test_the_15_minute_recipe_is_one_recipe_with_its_stated_exceptions(stage):
     """configs/15min/: the same settings for every category but M, the compactness weight and the animals'
