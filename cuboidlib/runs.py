@@ -61,19 +61,22 @@ class Distributed:
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
         self.owns_group = True
 
-    def stop(self, wait: bool = True) -> None:
-        """Destroy the process group if this object started it.
+    def wait(self) -> None:
+        """Wait until every process gets here (a barrier; nothing without a process group).
 
-        Args:
-            wait: first wait until every process gets here (a barrier), so that no process tears the group
-                down while rank 0 still validates and saves; False on the way out of an error, where another
-                process may never get here.
+        A run ends with it: rank 0 validates and saves after the last step, and no other process may go on
+        (read that checkpoint for a second stage, or tear the group down) before it has.
         """
         import torch.distributed as dist
 
+        if self.enabled and dist.is_initialized():
+            dist.barrier()
+
+    def stop(self) -> None:
+        """Destroy the process group if this object started it."""
+        import torch.distributed as dist
+
         if self.owns_group and dist.is_initialized():
-            if wait:
-                dist.barrier()
             dist.destroy_process_group()
             self.owns_group = False
 

@@ -617,7 +617,6 @@ class Trainer:
                    disable=True if (self.quiet or not self.dist.is_main) else None, file=sys.stderr)
         stopped = "finished"
         validated_at = None
-        finished = False
         try:
             perm, perm_epoch = None, None
             while self.step < self.total_steps:
@@ -647,10 +646,10 @@ class Trainer:
             if validated_at != self.step:
                 self._validate(time.monotonic() - start)
             self.save(time.monotonic() - start)
-            finished = True
+            self.dist.wait()  # rank 0 has validated and saved: the processes go on together
         finally:
             bar.close()
-            self.dist.stop(wait=finished)
+            self.dist.stop()
         seconds = time.monotonic() - start
         if not self.quiet and self.dist.is_main:
             tqdm.write(f"stopped at step {self.step} ({stopped}) after {seconds:.0f} s; "
@@ -734,16 +733,14 @@ def train_then_finetune(config: TrainConfig, finetune: TrainConfig, out_dir: str
     second = finetune.replace(init_from=str(out_dir / "best.pt"))
     group = Distributed()
     group.start(resolve_device(config.device))  # the Trainers below then find it and leave it open
-    finished = False
     try:
         first_result = None
         second_begun = resume and (second_dir / "last.pt").is_file()
-        if not second_begun:
+        if not second_begun:  # every process leaves run() after rank 0 has written best.pt
             first_result = Trainer(config, out_dir, resume=resume, quiet=quiet).run()
         second_result = Trainer(second, second_dir, resume=second_begun, quiet=quiet).run()
-        finished = True
     finally:
-        group.stop(wait=finished)
+        group.stop()
     return first_result, second_result
 
 

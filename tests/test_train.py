@@ -608,26 +608,36 @@ def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, c
         Trainer(TrainConfig.load_json(cfg), out, resume=True, quiet=True)
 
 
-def test_a_process_waits_for_the_others_before_it_tears_their_group_down(monkeypatch):
-    # Rank 1 ends its loop while rank 0 still validates and saves; tearing the group down then can abort rank 1.
+def test_every_process_leaves_a_run_only_after_rank_0_has_saved(monkeypatch, tmp_path, tiny):
+    # Rank 1 ends its loop while rank 0 still validates and saves. Going on then, it could read a best.pt not yet
+    # written (a second stage's init_from) or tear the group down under rank 0. So a run ends at a barrier.
     import torch.distributed as dist
 
     from cuboidlib.runs import Distributed
 
     calls = []
-    monkeypatch.setattr(dist, "is_initialized", lambda: True)
-    monkeypatch.setattr(dist, "barrier", lambda: calls.append("barrier"))
-    monkeypatch.setattr(dist, "destroy_process_group", lambda: calls.append("destroy"))
-    group = Distributed()
-    group.stop()
-    assert calls == []  # a group it did not start is left alone
-    group.owns_group = True
-    group.stop()
-    assert calls == ["barrier", "destroy"] and not group.owns_group
-    calls.clear()
-    group.owns_group = True
-    group.stop(wait=False)  # on the way out of an error: the other process may never reach a barrier
-    assert calls == ["destroy"]
+    with monkeypatch.context() as patch:
+        patch.setattr(dist, "is_initialized", lambda: True)
+        patch.setattr(dist, "barrier", lambda: calls.append("barrier"))
+        patch.setattr(dist, "destroy_process_group", lambda: calls.append("destroy"))
+        patch.setenv("WORLD_SIZE", "2")
+        group = Distributed()
+        group.stop()
+        assert calls == []  # a group it did not start is left alone
+        group.owns_group = True
+        group.wait()
+        group.stop()
+        assert calls == ["barrier", "destroy"] and not group.owns_group
+        calls.clear()
+        patch.setenv("WORLD_SIZE", "1")
+        Distributed().wait()
+        assert calls == []  # one process: no barrier
+    config, splits = tiny
+    out = tmp_path / "run"
+    monkeypatch.setattr(Distributed, "wait", lambda self: calls.append(("wait", (out / "best.pt").is_file(),
+                                                                          (out / "last.pt").is_file())))
+    Trainer(config.replace(max_steps=2), out, quiet=True, splits=splits).run()
+    assert calls == [("wait", True, True)]  # after the last validation and save
 
 
 def test_both_stages_in_one_torchrun_command_share_the_processes_and_the_card_says_so(tmp_path, tiny):
