@@ -1,7 +1,7 @@
 """Applications of a trained network (Sec. 4.4): generation (Fig. 12), interpolation (Fig. 13), structural
+clustering (Fig. 14), abstraction of point clouds, and loading the committed networks by name.
 
 One file, because every application runs the same encode / decode in evaluation mode.
-clustering (Fig. 14), abstraction of point clouds, and loading the committed networks by name.
 
 All use the network's ``encode`` / ``decode`` in evaluation mode (running BatchNorm statistics, no
 gradients), in the normalised coordinates it was trained in. A cuboid exists when its probability exceeds
