@@ -211,12 +211,13 @@ def check_resumable(state: dict, path: Path, stored: dict, requested: dict, resu
         state: the checkpoint dict of ``last.pt``; path: its file, for messages.
         stored, requested: the checkpoint's training config and this run's, as dicts.
         resumable: the config fields that may differ.
-        stored_total, total_steps: the step budgets of both, which a non-constant schedule must share.
+        stored_total, total_steps: the step budgets of both, which a non-constant schedule must share, as it must
+            share ``max_minutes``.
         lr_schedule: this run's learning-rate schedule.
         world_size: this run's number of processes, which must equal the checkpoint's.
 
     Raises:
-        ValueError: the checkpoint holds no training state, or the schedule or process count differs.
+        ValueError: the checkpoint holds no training state, or the schedule's span or the process count differs.
         cuboidlib.checkpoint.CheckpointMismatch: a model or training field outside ``resumable`` differs.
     """
     missing = [k for k in ("optimizer", "step", "rng", "best_val", "elapsed_seconds") if k not in state]
@@ -230,6 +231,11 @@ def check_resumable(state: dict, path: Path, stored: dict, requested: dict, resu
         raise ValueError(
             f"the {lr_schedule} learning-rate schedule spans the run's {stored_total} steps; "
             f"resume it with the same epochs / max_steps (this run asks for {total_steps} steps)"
+        )
+    if lr_schedule != "constant" and stored.get("max_minutes") != requested.get("max_minutes"):
+        raise ValueError(
+            f"the {lr_schedule} learning-rate schedule spans the run's time budget of {stored.get('max_minutes')} "
+            f"minutes; resume it with the same max_minutes (this run asks for {requested.get('max_minutes')})"
         )
     if state.get("world_size", 1) != world_size:
         raise ValueError(

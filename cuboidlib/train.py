@@ -91,7 +91,9 @@ class TrainConfig(DataConfig):
         model, loss: :class:`ModelConfig` and :class:`LossConfig` as dicts (objects accepted; missing keys
             take their defaults).
         lr: Adam's learning rate (paper: 6e-4).
-        lr_schedule: "constant" (the paper's) or "cosine", a half cosine from ``lr`` to ``lr_final`` over the run.
+        lr_schedule: "constant" (the paper's) or "cosine", a half cosine from ``lr`` to ``lr_final`` over the run:
+            over its steps, or over ``max_minutes`` where the time budget ends the run first
+            (:meth:`Trainer.learning_rate`).
         lr_final: the last rate of the cosine schedule.
         selection: the weights ``best.pt`` holds: "validation_loss", those of the lowest validation loss, or
             "last", the last validated ones (for a falling learning rate).
@@ -445,11 +447,15 @@ class Trainer:
         check_config_matches(stored, requested, f"model config of init_from {path}")
         self.model.load_state_dict(weights, strict=True)
 
-    def learning_rate(self, step: int) -> float:
+    def learning_rate(self, step: int, time_used: float = 0.0) -> float:
         """The learning rate of an optimiser step: constant, or a half cosine from ``lr`` to ``lr_final`` over the run.
+
+        The cosine's progress is the larger of the steps done and the time budget used, so that a run stopped by
+        ``max_minutes`` still ends at ``lr_final``, on a slow machine as on a fast one.
 
         Args:
             step: the step, 0-based.
+            time_used: the fraction of ``max_minutes`` used so far (0 without a time budget).
 
         Returns:
             The rate.
@@ -457,7 +463,7 @@ class Trainer:
         config = self.config
         if config.lr_schedule == "constant" or self.total_steps <= 1:
             return config.lr
-        progress = min(step / (self.total_steps - 1), 1.0)
+        progress = min(max(step / (self.total_steps - 1), time_used), 1.0)
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
     def affinity_temperature(self, step: int) -> float:
@@ -514,9 +520,9 @@ class Trainer:
         g = torch.Generator().manual_seed(derive_seed(self.config.seed, _ORDER, epoch))
         return torch.randperm(len(self.train_set), generator=g)
 
-    def _train_step(self, index: torch.Tensor, over_budget: bool) -> tuple[dict[str, float], bool]:
-        """One Adam step on the shapes ``index``; returns the (process-averaged) loss terms and whether
-        any process has used up its time budget."""
+    def _train_step(self, index: torch.Tensor, time_used: float) -> tuple[dict[str, float], bool]:
+        """One Adam step on the shapes ``index``, ``time_used`` being the fraction of the time budget used; returns
+        the (process-averaged) loss terms and whether any process has used up its time budget."""
         points = self.train_set.points[index]
         normals = self.train_set.normals[index]
         self.model.segmentation.temperature = self.affinity_temperature(self.step)
@@ -528,14 +534,16 @@ class Trainer:
         else:
             terms = total_loss(out, points, normals, self.loss_config, generator=self.loss_generator)
             values = torch.stack([getattr(terms, k).detach() for k in LOSS_TERMS] + _diagnostics(out))
-        flag = torch.tensor([float(over_budget)], dtype=values.dtype, device=values.device)
+        # Every process takes the same rate (the mean time used) and stops with the first one out of time.
+        clock = torch.tensor([time_used, float(time_used >= 1.0)], dtype=values.dtype, device=values.device)
         if self.dist.enabled:
             import torch.distributed as dist
 
-            packed = torch.cat([values / self.dist.world_size, flag])
+            packed = torch.cat([values, clock]) / self.dist.world_size
             dist.all_reduce(packed)
-            values, flag = packed[:-1], packed[-1:]
+            values, clock = packed[:-2], packed[-2:]
         numbers = dict(zip(LOSS_TERMS + DIAGNOSTICS, values.tolist()))
+        time_used, over = clock.tolist()
         if bad_outputs:
             raise TrainingDiverged(self.step + 1, [f"network outputs ({', '.join(bad_outputs)})"],
                                    last_checkpoint=self._last_saved)
@@ -547,10 +555,10 @@ class Trainer:
         losses = {k: numbers[k] for k in LOSS_TERMS}
         check_gradients(self.model, self.step + 1, losses, self._last_saved)
         for group in self.optimizer.param_groups:
-            group["lr"] = self.learning_rate(self.step)
+            group["lr"] = self.learning_rate(self.step, time_used)
         self.optimizer.step()
         check_finite_weights(self.model, self.step + 1, losses, self._last_saved)
-        return numbers, bool(flag.item() > 0)
+        return numbers, over > 0
 
     def _validation_scores(self) -> dict[str, float]:
         """mIoU (label transfer within the validation split), N_AC and box distance of the network now."""
@@ -606,8 +614,8 @@ class Trainer:
         config = self.config
         start = time.monotonic()
         # The budget counts the training time of earlier sessions of this run (a resumed run gets what is left).
-        budget = 60 * config.max_minutes - self.elapsed if config.max_minutes is not None else math.inf
-        deadline = start + budget
+        total_budget = 60 * config.max_minutes if config.max_minutes is not None else math.inf
+        budget = total_budget - self.elapsed
         if budget <= 0:  # resumed after the time budget was used up: last.pt is final (validated at the stop)
             self.dist.stop()
             return TrainResult(self.step, self.step // self.steps_per_epoch, "time budget", self.best_val,
@@ -624,7 +632,8 @@ class Trainer:
                 if perm_epoch != epoch:
                     perm, perm_epoch = self._permutation(epoch), epoch
                 batch = perm[position * config.batch_size:(position + 1) * config.batch_size][shard]
-                self.last_terms, over = self._train_step(batch.to(self.device), time.monotonic() >= deadline)
+                time_used = (self.elapsed + time.monotonic() - start) / total_budget
+                self.last_terms, over = self._train_step(batch.to(self.device), time_used)
                 if self.core_share is not None:
                     self.core_share.step()
                 self.step += 1
