@@ -1,0 +1,74 @@
+"""The runs of ``seeds.sh`` as one Markdown table, from their cards.
+
+Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the first stage's learning rate,
+the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, and the network's test
+scores; a last row per learning rate gives the mean over the seeds. Usage::
+
+    python experiments/fifteen/seeds_table.py [CARD ...]
+"""
+import argparse
+import json
+from pathlib import Path
+from statistics import mean
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
+HEADER = ("| category | first-stage learning rate | seed | first stage: validation mIoU %, last 1000 steps "
+          "| test mIoU % | N_AC | CD x1000 | box distance | smallest part IoU % |")
+RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+
+
+def schedule(config: dict) -> str:
+    """The first stage's learning rate in words: "constant 0.002" or "falls 0.002 -> 2e-05"."""
+    if config["lr_schedule"] == "constant":
+        return f"constant {config['lr']:g}"
+    return f"falls {config['lr']:g} -> {config['lr_final']:g}"
+
+
+def scores(card: dict) -> dict:
+    """The numbers of one card's row."""
+    first = card["initialised_from"]
+    last = first["training"]["steps"]
+    late = [100 * v["miou"] for v in first["training"]["validation"] if v["step"] > last - 1000]
+    net = card["test"]["results"][0]
+    worst = min(net["part_iou"], key=net["part_iou"].get)
+    return {"category": first["config"]["category"], "lr": schedule(first["config"]),
+            "seed": first["config"]["seed"], "late": (min(late), max(late)), "miou": 100 * net["miou"],
+            "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
+            "worst": (worst, 100 * net["part_iou"][worst])}
+
+
+def row(s: dict) -> str:
+    """One run's row."""
+    return (f"| {s['category']} | {s['lr']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
+            f"| {s['miou']:.1f} | {s['n_ac']:.2f} | {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
+
+
+def mean_row(runs: list[dict]) -> str:
+    """The mean over the seeds of one category and learning rate."""
+    return (f"| {runs[0]['category']} | {runs[0]['lr']} | mean of {len(runs)} "
+            f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) "
+            f"| **{mean(r['miou'] for r in runs):.1f}** | {mean(r['n_ac'] for r in runs):.2f} "
+            f"| {mean(r['cd'] for r in runs):.2f} | {mean(r['box'] for r in runs):.4f} | |")
+
+
+def table(cards: list[Path]) -> list[str]:
+    """The table's lines: the runs of each category and learning rate by seed, then their mean."""
+    runs = sorted((scores(json.loads(p.read_text())) for p in cards), key=lambda s: (s["category"], s["lr"], s["seed"]))
+    lines = [HEADER, RULE]
+    for i, run in enumerate(runs):
+        lines.append(row(run))
+        if i + 1 == len(runs) or (runs[i + 1]["category"], runs[i + 1]["lr"]) != (run["category"], run["lr"]):
+            group = [r for r in runs if (r["category"], r["lr"]) == (run["category"], run["lr"])]
+            lines.append(mean_row(group))
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("cards", nargs="*", type=Path, help="cards (default: every card in results/seeds/)")
+    print("\n".join(table(parser.parse_args().cards or sorted(RESULTS.glob("*.json")))))
+
+
+if __name__ == "__main__":
+    main()
