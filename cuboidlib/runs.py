@@ -211,8 +211,8 @@ def check_resumable(state: dict, path: Path, stored: dict, requested: dict, resu
         state: the checkpoint dict of ``last.pt``; path: its file, for messages.
         stored, requested: the checkpoint's training config and this run's, as dicts.
         resumable: the config fields that may differ.
-        stored_total, total_steps: the step budgets of both, which a non-constant schedule must share, as it must
-            share ``max_minutes``.
+        stored_total, total_steps: the step budgets of both, which the "cosine" schedule must share (as
+            "cosine_minutes" must share ``max_minutes``).
         lr_schedule: this run's learning-rate schedule.
         world_size: this run's number of processes, which must equal the checkpoint's.
 
@@ -227,12 +227,12 @@ def check_resumable(state: dict, path: Path, stored: dict, requested: dict, resu
     check_config_matches(stored["model"], requested["model"], "model config")
     check_config_matches({k: v for k, v in stored.items() if k not in resumable},
                          {k: v for k, v in requested.items() if k not in resumable}, "training config")
-    if lr_schedule != "constant" and stored_total != total_steps:
+    if lr_schedule == "cosine" and stored_total != total_steps:
         raise ValueError(
             f"the {lr_schedule} learning-rate schedule spans the run's {stored_total} steps; "
             f"resume it with the same epochs / max_steps (this run asks for {total_steps} steps)"
         )
-    if lr_schedule != "constant" and stored.get("max_minutes") != requested.get("max_minutes"):
+    if lr_schedule == "cosine_minutes" and stored.get("max_minutes") != requested.get("max_minutes"):
         raise ValueError(
             f"the {lr_schedule} learning-rate schedule spans the run's time budget of {stored.get('max_minutes')} "
             f"minutes; resume it with the same max_minutes (this run asks for {requested.get('max_minutes')})"

@@ -55,8 +55,9 @@ DIAGNOSTICS = ("n_existing", "saturated", "affinity_gap")
 VALIDATION_SCORES = ("miou", "n_ac", "box_distance")
 #: The columns of ``log.csv``.
 LOG_FIELDS = ("step", "epoch", "split") + LOSS_TERMS + DIAGNOSTICS + ("seconds",) + VALIDATION_SCORES
-#: Learning-rate schedules: the paper's constant rate, or a half cosine down to ``lr_final``.
-LR_SCHEDULES = ("constant", "cosine")
+#: Learning-rate schedules: the paper's constant rate, or a half cosine down to ``lr_final`` over the run's steps
+#: or over its time budget.
+LR_SCHEDULES = ("constant", "cosine", "cosine_minutes")
 #: Model selection (which weights ``best.pt`` holds): those of the lowest validation loss, or the last
 #: validated ones (the end of a falling learning rate), with how a card names each.
 SELECTIONS = {"validation_loss": "lowest validation loss", "last": "last weights"}
@@ -91,10 +92,10 @@ class TrainConfig(DataConfig):
         model, loss: :class:`ModelConfig` and :class:`LossConfig` as dicts (objects accepted; missing keys
             take their defaults).
         lr: Adam's learning rate (paper: 6e-4).
-        lr_schedule: "constant" (the paper's) or "cosine", a half cosine from ``lr`` to ``lr_final`` over the run:
-            over its steps, or over ``max_minutes`` where the time budget ends the run first
-            (:meth:`Trainer.learning_rate`).
-        lr_final: the last rate of the cosine schedule.
+        lr_schedule: "constant" (the paper's); "cosine", a half cosine from ``lr`` to ``lr_final`` over the run's
+            steps; or "cosine_minutes", the same over its ``max_minutes`` of training time, for a run that the
+            clock ends (:meth:`Trainer.learning_rate`). Only the first two give the same run on every machine.
+        lr_final: the last rate of the cosine schedules.
         selection: the weights ``best.pt`` holds: "validation_loss", those of the lowest validation loss, or
             "last", the last validated ones (for a falling learning rate).
         temperature_start, temperature_steps: the allocation warm-up (the course's, not the paper's): the
@@ -160,6 +161,9 @@ class TrainConfig(DataConfig):
         self.lr = float(self.lr)
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"TrainConfig.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if self.lr_schedule == "cosine_minutes" and self.max_minutes is None:
+            raise ValueError('TrainConfig.lr_schedule "cosine_minutes" falls over max_minutes, which is None; '
+                             'set max_minutes, or use "cosine" to fall over the steps')
         if not (isinstance(self.lr_final, (int, float)) and 0 <= self.lr_final <= self.lr):
             raise ValueError(f"TrainConfig.lr_final must be a number between 0 and lr ({self.lr}), got {self.lr_final!r}")
         self.lr_final = float(self.lr_final)
@@ -450,20 +454,25 @@ class Trainer:
     def learning_rate(self, step: int, time_used: float = 0.0) -> float:
         """The learning rate of an optimiser step: constant, or a half cosine from ``lr`` to ``lr_final`` over the run.
 
-        The cosine's progress is the larger of the steps done and the time budget used, so that a run stopped by
-        ``max_minutes`` still ends at ``lr_final``, on a slow machine as on a fast one.
+        "cosine" follows the steps, so that a run is the same on every machine. "cosine_minutes" follows the
+        time budget, so that a run stopped by ``max_minutes`` ends at ``lr_final`` on a slow machine as on a fast one.
 
         Args:
             step: the step, 0-based.
-            time_used: the fraction of ``max_minutes`` used so far (0 without a time budget).
+            time_used: the fraction of ``max_minutes`` used so far ("cosine_minutes" only).
 
         Returns:
             The rate.
         """
         config = self.config
-        if config.lr_schedule == "constant" or self.total_steps <= 1:
+        if config.lr_schedule == "constant":
             return config.lr
-        progress = min(max(step / (self.total_steps - 1), time_used), 1.0)
+        if config.lr_schedule == "cosine_minutes":
+            progress = min(time_used, 1.0)
+        elif self.total_steps <= 1:
+            return config.lr
+        else:
+            progress = min(step / (self.total_steps - 1), 1.0)
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
     def affinity_temperature(self, step: int) -> float:

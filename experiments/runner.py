@@ -210,15 +210,18 @@ FIFTEEN_MINUTE_SHAPES = 1000
 def recipe_configs(category: str, steps: int, **changes) -> tuple[TrainConfig, TrainConfig]:
     """The two stages of the 15-minute recipe of ``category``, with ``steps`` first-stage steps instead of 9 minutes.
 
-    Both stages run on one thread and stop on their step counts (no time budget: runs are repeatable); the
-    second stage keeps the recipe's 500 steps. ``changes`` apply to both stages (``model`` / ``loss`` dicts are
+    Both stages run on one thread and stop on their step counts (no time budget: runs are repeatable; a learning
+    rate that falls over the recipe's minutes falls over the steps instead); the second stage keeps the recipe's
+    500 steps. ``changes`` apply to both stages (``model`` / ``loss`` dicts are
     merged into each stage's own). The second stage's ``init_from`` is set where it runs (:func:`execute`).
     """
     if category not in COURSE_NUM_CUBOIDS:
         raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
     folder = checkpoint_dir() / "configs" / FIFTEEN_MINUTES
-    first = TrainConfig.load_json(folder / f"{category}.json").replace(
-        max_steps=steps, max_minutes=None, num_threads=1, checkpoint_every=steps, validate_every=min(100, steps))
+    first = TrainConfig.load_json(folder / f"{category}.json")
+    schedule = "cosine" if first.lr_schedule == "cosine_minutes" else first.lr_schedule  # falls over the steps
+    first = first.replace(max_steps=steps, max_minutes=None, lr_schedule=schedule, num_threads=1,
+                          checkpoint_every=steps, validate_every=min(100, steps))
     second = TrainConfig.load_json(folder / "finetune" / f"{category}.json")
     second = second.replace(max_minutes=None, num_threads=1, init_from=None,
                             checkpoint_every=second.max_steps)

@@ -262,11 +262,11 @@ def test_cosine_schedule_goes_from_lr_to_lr_final_and_resumes_exactly(tmp_path, 
     assert Trainer(config.replace(lr_schedule="constant"), tmp_path / "c", quiet=True, splits=splits).learning_rate(7) == 1e-3
 
 
-def test_cosine_schedule_follows_the_time_budget_when_it_ends_the_run_first(tmp_path, tiny, monkeypatch):
+def test_cosine_minutes_schedule_falls_over_the_time_budget_and_cosine_ignores_the_clock(tmp_path, tiny, monkeypatch):
     config, splits = tiny
     seconds = iter(range(10**6))  # a clock that moves one second at every reading
     monkeypatch.setattr(train_module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: next(seconds))}))
-    config = config.replace(lr=1e-3, lr_schedule="cosine", lr_final=1e-4, max_steps=10_000, max_minutes=1.0)
+    config = config.replace(lr=1e-3, lr_schedule="cosine_minutes", lr_final=1e-4, max_steps=10_000, max_minutes=1.0)
     trainer = Trainer(config, tmp_path / "timed", quiet=True, splits=splits)
     rates, rate = [], trainer.learning_rate
     monkeypatch.setattr(trainer, "learning_rate", lambda step, used=0.0: rates.append(rate(step, used)) or rates[-1])
@@ -274,9 +274,12 @@ def test_cosine_schedule_follows_the_time_budget_when_it_ends_the_run_first(tmp_
     assert result.stopped == "time budget" and 5 < result.step < 60
     assert rates[0] > 0.95e-3 and rates[-1] == pytest.approx(1e-4)  # the whole half cosine within the minute
     assert all(a >= b for a, b in zip(rates, rates[1:]))
-    assert rate(result.step) > 0.999e-3  # the steps alone would have kept the rate near lr
     with pytest.raises(ValueError, match="resume it with the same max_minutes"):
         Trainer(config.replace(max_minutes=2.0), tmp_path / "timed", resume=True, quiet=True, splits=splits)
+    with pytest.raises(ValueError, match='"cosine_minutes" falls over max_minutes, which is None'):
+        config.replace(max_minutes=None)
+    steps = Trainer(config.replace(lr_schedule="cosine", max_steps=40), tmp_path / "steps", quiet=True, splits=splits)
+    assert [steps.learning_rate(k, used) for k, used in ((0, 0.9), (39, 0.0))] == [1e-3, pytest.approx(1e-4)]
 
 
 def test_temperature_warm_up_falls_geometrically_and_best_is_chosen_after_it(tmp_path, tiny, monkeypatch):
