@@ -330,6 +330,35 @@ def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
     assert block.group(1).strip() == "\n".join([table.HEADER, table.RULE] + [table.row(c) for c in cards])
 
 
+def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
+    """experiments/fifteen/results/seeds/<category>--<name>--seed<seed>.json: each first stage is the recipe's but for
+    its seed, step budget and threads, and its learning rate: falling over the steps instead of the minutes, or
+    constant; the page shows the table that seeds_table.py makes of them."""
+    import importlib.util
+
+    from cuboidlib.train import TrainConfig
+
+    fifteen = ROOT / "experiments" / "fifteen"
+    spec = importlib.util.spec_from_file_location("seeds_table", fifteen / "seeds_table.py")
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    cards = sorted((fifteen / "results" / "seeds").glob("*.json"))
+    assert len(cards) >= 2
+    for path in cards:
+        category, name, seed = path.stem.split("--")
+        first = _flat(json.loads(path.read_text())["initialised_from"]["config"])
+        recipe = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{category}.json").to_dict())
+        differ = {k for k, v in first.items() if v != recipe[k]}
+        allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule"}
+        assert differ <= allowed and first["seed"] == int(seed.removeprefix("seed")), (path.name, differ)
+        over_steps = "cosine" if recipe["lr_schedule"] == "cosine_minutes" else recipe["lr_schedule"]
+        assert first["lr_schedule"] == ("constant" if name == "constant" else over_steps), path.name
+        assert first["max_steps"] == 2500, path.name
+    block = re.search(r"<!-- seeds:start -->\n(.*?)\n<!-- seeds:end -->", (fifteen / "README.md").read_text(), re.S)
+    assert block is not None
+    assert block.group(1).strip() == "\n".join(table.table(cards))
+
+
 @pytest.mark.parametrize("stage", ["", "finetune/"])
 def test_the_15_minute_recipe_is_one_recipe_with_its_stated_exceptions(stage):
     """configs/15min/: the same settings for every category but M, the compactness weight and the animals'
