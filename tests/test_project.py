@@ -307,16 +307,22 @@ def _flat(d: dict, prefix: str = "") -> dict:
     return out
 
 
+def _script_module(path: Path):
+    """A script of experiments/ imported as a module (its main() is not run)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
     """experiments/fifteen/results/second_stage/<first stage>--<name>.json: the cards named "recipe" trained the
     recipe's second stage and no other did; each began from a first stage kept in results/first_stage/; and
     experiments/fifteen/README.md shows the table that second_stage_table.py makes of them."""
-    import importlib.util
-
     fifteen = ROOT / "experiments" / "fifteen"
-    spec = importlib.util.spec_from_file_location("second_stage_table", fifteen / "second_stage_table.py")
-    table = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(table)
+    table = _script_module(fifteen / "second_stage_table.py")
     cards = sorted((fifteen / "results" / "second_stage").glob("*.json"))
     assert len(cards) >= 2
     for path in cards:
@@ -334,14 +340,10 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     """experiments/fifteen/results/seeds/<category>--<name>--seed<seed>.json: each first stage is the recipe's but for
     its seed, step budget and threads, and its learning rate: falling over the steps instead of the minutes, or
     constant; the page shows the table that seeds_table.py makes of them."""
-    import importlib.util
-
     from cuboidlib.train import TrainConfig
 
     fifteen = ROOT / "experiments" / "fifteen"
-    spec = importlib.util.spec_from_file_location("seeds_table", fifteen / "seeds_table.py")
-    table = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(table)
+    table = _script_module(fifteen / "seeds_table.py")
     cards = sorted((fifteen / "results" / "seeds").glob("*.json"))
     assert len(cards) >= 2
     for path in cards:
