@@ -60,7 +60,7 @@ import sys
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Sequence
@@ -556,19 +556,35 @@ TRAINED_DIR = "trained"
 TRAINING_FILE = "training.json"
 
 
-def _train(run: Run, train_dir: Path) -> dict:
+#: What a first stage's summary says (:func:`_train`), also in the summary of a two-stage training.
+FIRST_STAGE_FIELDS = ("steps", "best_step", "stopped", "best_val_loss", "seconds")
+
+
+def _train(run: Run, train_dir: Path, store: Path | None = None) -> dict:
     """Train ``run`` in ``train_dir``, or read back the training finished there earlier; its summary.
+
+    With ``store``, the folder of shared trainings that holds ``train_dir``, a two-stage run's first stage is
+    the training of that first stage alone, ``store / training_key(first stage)``: second stages that start
+    from the same first stage share it, across scripts and invocations (``first_stage_reused`` in the summary).
+    A training folder that already holds its own first stage (one begun before first stages were shared)
+    finishes there.
 
     A lock file keeps two processes (two scripts run side by side) from training in one folder at once: the
     second waits, then reads the first one's training back."""
+    first_stage = None
+    if (store is not None and run.finetune is not None and not (train_dir / TRAINING_FILE).is_file()
+            and not (train_dir / "last.pt").is_file()):
+        first = replace(run, finetune=None)
+        first_dir = store / training_key(first)
+        first_stage = (first_dir, _train(first, first_dir))
     train_dir.mkdir(parents=True, exist_ok=True)
     with open(train_dir / ".lock", "w") as lock:
         if fcntl is not None:
             fcntl.flock(lock, fcntl.LOCK_EX)
-        return _train_locked(run, train_dir)
+        return _train_locked(run, train_dir, first_stage)
 
 
-def _train_locked(run: Run, train_dir: Path) -> dict:
+def _train_locked(run: Run, train_dir: Path, first_stage: tuple[Path, dict] | None) -> dict:
     done = train_dir / TRAINING_FILE
     if done.is_file():
         return {**json.loads(done.read_text()), "reused": True}
@@ -579,14 +595,18 @@ def _train_locked(run: Run, train_dir: Path) -> dict:
     # configuration differs
     second_dir = train_dir / FINETUNE_DIR
     second_begun = run.finetune is not None and (second_dir / "last.pt").is_file()
-    summary = {}
-    if not second_begun:
+    summary, first_dir = {}, train_dir
+    if first_stage is not None:
+        first_dir, first_summary = first_stage
+        summary = {k: first_summary[k] for k in FIRST_STAGE_FIELDS}
+        summary["first_stage_reused"] = bool(first_summary.get("reused"))
+    elif not second_begun:
         resume = (train_dir / "last.pt").is_file()
         trained = Trainer(run.config, train_dir, quiet=True, splits=splits, resume=resume).run()
         summary = {"steps": trained.step, "best_step": trained.best_step, "stopped": trained.stopped,
                    "best_val_loss": trained.best_val, "seconds": round(trained.seconds, 1)}
     if run.finetune is not None:
-        second = run.finetune.replace(init_from=str(train_dir / "best.pt"))
+        second = run.finetune.replace(init_from=str(first_dir / "best.pt"))
         tuned = Trainer(second, second_dir, quiet=True, splits=splits, resume=second_begun).run()
         summary.update(finetune_steps=tuned.step, finetune_best_step=tuned.best_step,
                        finetune_best_val_loss=tuned.best_val, finetune_seconds=round(tuned.seconds, 1))
@@ -620,7 +640,7 @@ def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike
         else:
             if run.task == "train":
                 train_dir = Path(trained_dir) / training_key(run) if trained_dir is not None else Path(run_dir)
-                record["training"] = _train(run, train_dir)
+                record["training"] = _train(run, train_dir, Path(trained_dir) if trained_dir is not None else None)
                 checkpoint = _selected_weights(run, train_dir)
             else:
                 checkpoint = Path(run.options["checkpoint"])

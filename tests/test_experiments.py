@@ -14,6 +14,7 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -502,6 +503,31 @@ def test_runs_that_share_a_training_train_once_within_an_invocation_and_across_s
                            trained_dir=tmp_path / "trained")
     assert all(r["training"]["reused"] for r in again)
     assert again[0]["results"] == records[0]["results"]
+
+
+def test_second_stages_that_start_from_the_same_first_stage_share_its_training(tmp_path):
+    run = _runs(table5, "--recipe", "15min", "--quick")[1][0]
+    other = replace(run, name="other", finetune=run.finetune.replace(lr=5e-4))
+    first_key = runner.training_key(replace(run, finetune=None))
+    assert len({first_key, runner.training_key(run), runner.training_key(other)}) == 3
+    store = tmp_path / "trained"
+    records = runner.run_all([run, other], tmp_path / "runs", jobs=1, report=lambda line: None, trained_dir=store)
+    assert [r["status"] for r in records] == ["ok", "ok"]
+    assert [r["training"]["first_stage_reused"] for r in records] == [False, True]
+    assert (store / first_key / "best.pt").is_file()
+    for r in (run, other):  # a second stage's folder holds the second stage alone
+        assert sorted(p.name for p in (store / runner.training_key(r)).iterdir()
+                      if not p.name.startswith(".")) == [runner.FINETUNE_DIR, runner.TRAINING_FILE]
+    assert records[0]["training"]["steps"] == records[1]["training"]["steps"] == 2
+    assert records[0]["results"] != records[1]["results"]  # two second stages, two networks
+    # a training folder begun before first stages were shared keeps its own first stage
+    legacy = tmp_path / "legacy"
+    runner._train(run, legacy)
+    (legacy / runner.TRAINING_FILE).unlink()
+    shutil.rmtree(legacy / runner.FINETUNE_DIR)
+    summary = runner._train(run, legacy, tmp_path / "empty_store")
+    assert "first_stage_reused" not in summary and not (tmp_path / "empty_store").exists()
+    assert (legacy / runner.FINETUNE_DIR / "best.pt").is_file()
 
 
 def test_a_failing_run_is_recorded_and_the_others_go_on(tmp_path):
