@@ -1,8 +1,8 @@
 """The runs of ``seeds.sh`` as one Markdown table, from their cards.
 
 Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the first stage's learning rate,
-the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, and the network's test
-scores; a last row per learning rate gives the mean over the seeds. Usage::
+the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the validation loss of
+the first-stage weights it kept (those the second stage starts from), and the network's test scores; a last row per learning rate gives the mean over the seeds. Usage::
 
     python experiments/fifteen/seeds_table.py [CARD ...]
 """
@@ -14,8 +14,9 @@ from statistics import mean
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
 HEADER = ("| category | first-stage learning rate | seed | first stage: validation mIoU %, last 1000 steps "
-          "| test mIoU % | N_AC | CD x1000 | box distance | smallest part IoU % |")
-RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+          "| first stage: kept weights' validation loss x1000 | test mIoU % | N_AC | CD x1000 | box distance "
+          "| smallest part IoU % |")
+RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 
 
 def schedule(config: dict) -> str:
@@ -30,10 +31,11 @@ def scores(card: dict) -> dict:
     first = card["initialised_from"]
     last = first["training"]["steps"]
     late = [100 * v["miou"] for v in first["training"]["validation"] if v["step"] > last - 1000]
+    kept = next(v["loss"] for v in first["training"]["validation"] if v["step"] == first["training"]["selected_step"])
     net = card["test"]["results"][0]
     worst = min(net["part_iou"], key=net["part_iou"].get)
     return {"category": first["config"]["category"], "lr": schedule(first["config"]),
-            "seed": first["config"]["seed"], "late": (min(late), max(late)), "miou": 100 * net["miou"],
+            "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept, "miou": 100 * net["miou"],
             "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
             "worst": (worst, 100 * net["part_iou"][worst])}
 
@@ -41,13 +43,13 @@ def scores(card: dict) -> dict:
 def row(s: dict) -> str:
     """One run's row."""
     return (f"| {s['category']} | {s['lr']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
-            f"| {s['miou']:.1f} | {s['n_ac']:.2f} | {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
+            f"| {s['kept_loss']:.2f} | {s['miou']:.1f} | {s['n_ac']:.2f} | {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
 
 
 def mean_row(runs: list[dict]) -> str:
     """The mean over the seeds of one category and learning rate."""
     return (f"| {runs[0]['category']} | {runs[0]['lr']} | mean of {len(runs)} "
-            f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) "
+            f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) | {mean(r['kept_loss'] for r in runs):.2f} "
             f"| **{mean(r['miou'] for r in runs):.1f}** | {mean(r['n_ac'] for r in runs):.2f} "
             f"| {mean(r['cd'] for r in runs):.2f} | {mean(r['box'] for r in runs):.4f} | |")
 
