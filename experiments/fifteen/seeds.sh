@@ -3,8 +3,9 @@
 # (about what its 9 minutes give on a quiet machine) instead of by the clock, so that a learning rate that falls over
 # the recipe's minutes falls over those steps. Two runs side by side use both cores; each takes about 15 minutes.
 # Usage: bash experiments/fifteen/seeds.sh CATEGORY SEED NAME [--set KEY=VALUE ...]
-#   SEED seeds both stages; --set changes the first stage. Writes runs/seeds/<category>--NAME--seed<SEED>/ and its
-#   card to experiments/fifteen/results/seeds/<category>--NAME--seed<SEED>.json (test scores as in every card).
+#   SEED seeds both stages; --set changes the first stage (a NAME ending in "-<N>steps" goes with --set
+#   max_steps=N). Writes runs/seeds/<category>--NAME--seed<SEED>/ and its card to
+#   experiments/fifteen/results/seeds/<category>--NAME--seed<SEED>.json (test scores as in every card).
 #   python experiments/fifteen/seeds_table.py tabulates the cards.
 set -euo pipefail
 category=$1 seed=$2 name=$3

@@ -1,22 +1,26 @@
 """The runs of ``seeds.sh`` as one Markdown table, from their cards.
 
-Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the first stage's learning rate,
-the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the validation loss of
-the first-stage weights it kept (those the second stage starts from), and the network's test scores; a last row per learning rate gives the mean over the seeds. Usage::
+Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the first stage's learning rate
+and steps, the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the
+validation loss of the first-stage weights it kept (those the second stage starts from), and the network's test
+scores. A last row per learning rate and steps gives the mean over the seeds, and the mean over every pair of
+seeds of the network whose first stage kept the lower validation loss: what a command would score that trained
+two first stages and went on with the one of lower loss. Usage::
 
     python experiments/fifteen/seeds_table.py [CARD ...]
 """
 import argparse
 import json
 from pathlib import Path
+from itertools import combinations
 from statistics import mean
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
-HEADER = ("| category | first-stage learning rate | seed | first stage: validation mIoU %, last 1000 steps "
+HEADER = ("| category | first-stage learning rate | first-stage steps | seed | first stage: validation mIoU %, last 1000 steps "
           "| first stage: kept weights' validation loss x1000 | test mIoU % | N_AC | CD x1000 | box distance "
           "| smallest part IoU % |")
-RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 
 
 def schedule(config: dict) -> str:
@@ -34,7 +38,7 @@ def scores(card: dict) -> dict:
     kept = next(v["loss"] for v in first["training"]["validation"] if v["step"] == first["training"]["selected_step"])
     net = card["test"]["results"][0]
     worst = min(net["part_iou"], key=net["part_iou"].get)
-    return {"category": first["config"]["category"], "lr": schedule(first["config"]),
+    return {"category": first["config"]["category"], "lr": schedule(first["config"]), "steps": last,
             "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept, "miou": 100 * net["miou"],
             "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
             "worst": (worst, 100 * net["part_iou"][worst])}
@@ -42,27 +46,37 @@ def scores(card: dict) -> dict:
 
 def row(s: dict) -> str:
     """One run's row."""
-    return (f"| {s['category']} | {s['lr']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
+    return (f"| {s['category']} | {s['lr']} | {s['steps']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
             f"| {s['kept_loss']:.2f} | {s['miou']:.1f} | {s['n_ac']:.2f} | {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
 
 
+def lower_loss_of_two(runs: list[dict]) -> float:
+    """The mean test mIoU, over every pair of runs, of the run whose first stage kept the lower validation loss."""
+    return mean(min(pair, key=lambda r: r["kept_loss"])["miou"] for pair in combinations(runs, 2))
+
+
 def mean_row(runs: list[dict]) -> str:
-    """The mean over the seeds of one category and learning rate."""
-    return (f"| {runs[0]['category']} | {runs[0]['lr']} | mean of {len(runs)} "
+    """The mean over the seeds of one category, learning rate and steps."""
+    choice = f" (of two by lower loss: {lower_loss_of_two(runs):.1f})" if len(runs) > 1 else ""
+    return (f"| {runs[0]['category']} | {runs[0]['lr']} | {runs[0]['steps']} | mean of {len(runs)} "
             f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) | {mean(r['kept_loss'] for r in runs):.2f} "
-            f"| **{mean(r['miou'] for r in runs):.1f}** | {mean(r['n_ac'] for r in runs):.2f} "
+            f"| **{mean(r['miou'] for r in runs):.1f}**{choice} | {mean(r['n_ac'] for r in runs):.2f} "
             f"| {mean(r['cd'] for r in runs):.2f} | {mean(r['box'] for r in runs):.4f} | |")
 
 
+def _group(s: dict) -> tuple:
+    """The runs averaged together: one category, learning rate and number of first-stage steps (most first)."""
+    return s["category"], s["lr"], -s["steps"]
+
+
 def table(cards: list[Path]) -> list[str]:
-    """The table's lines: the runs of each category and learning rate by seed, then their mean."""
-    runs = sorted((scores(json.loads(p.read_text())) for p in cards), key=lambda s: (s["category"], s["lr"], s["seed"]))
+    """The table's lines: the runs of each category, learning rate and steps by seed, then their mean."""
+    runs = sorted((scores(json.loads(p.read_text())) for p in cards), key=lambda s: (*_group(s), s["seed"]))
     lines = [HEADER, RULE]
     for i, run in enumerate(runs):
         lines.append(row(run))
-        if i + 1 == len(runs) or (runs[i + 1]["category"], runs[i + 1]["lr"]) != (run["category"], run["lr"]):
-            group = [r for r in runs if (r["category"], r["lr"]) == (run["category"], run["lr"])]
-            lines.append(mean_row(group))
+        if i + 1 == len(runs) or _group(runs[i + 1]) != _group(run):
+            lines.append(mean_row([r for r in runs if _group(r) == _group(run)]))
     return lines
 
 
