@@ -624,7 +624,8 @@ def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike
     """Do one :class:`Run` in this process with one torch thread; return its record (JSON types).
 
     A "train" run trains in ``trained_dir / training_key(run)`` when ``trained_dir`` is given (a training
-    finished there by any run with the same key is read back, not repeated), else in ``run_dir``.
+    finished there by any run with the same key is read back, not repeated; a two-stage run's first stage is a
+    training of its own there, :func:`_train`), else in ``run_dir``.
     Never raises for a failing run: the record then has ``status`` "failed" and the ``error``.
     """
     start, cpu_start = time.perf_counter(), time.process_time()
