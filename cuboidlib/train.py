@@ -465,14 +465,10 @@ class Trainer:
             The rate.
         """
         config = self.config
-        if config.lr_schedule == "constant":
+        by_minutes = config.lr_schedule == "cosine_minutes"
+        if config.lr_schedule == "constant" or (not by_minutes and self.total_steps <= 1):
             return config.lr
-        if config.lr_schedule == "cosine_minutes":
-            progress = min(time_used, 1.0)
-        elif self.total_steps <= 1:
-            return config.lr
-        else:
-            progress = min(step / (self.total_steps - 1), 1.0)
+        progress = min(time_used if by_minutes else step / (self.total_steps - 1), 1.0)
         return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
 
     def affinity_temperature(self, step: int) -> float:

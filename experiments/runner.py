@@ -640,8 +640,9 @@ def execute(run: Run, run_dir: str | os.PathLike, trained_dir: str | os.PathLike
             record["results"] = _fit_and_score(run.config, run.options)
         else:
             if run.task == "train":
-                train_dir = Path(trained_dir) / training_key(run) if trained_dir is not None else Path(run_dir)
-                record["training"] = _train(run, train_dir, Path(trained_dir) if trained_dir is not None else None)
+                store = Path(trained_dir) if trained_dir is not None else None
+                train_dir = store / training_key(run) if store is not None else Path(run_dir)
+                record["training"] = _train(run, train_dir, store)
                 checkpoint = _selected_weights(run, train_dir)
             else:
                 checkpoint = Path(run.options["checkpoint"])

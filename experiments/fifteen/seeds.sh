@@ -3,8 +3,8 @@
 # (about what its 9 minutes give on a quiet machine) instead of by the clock, so that a learning rate that falls over
 # the recipe's minutes falls over those steps. Two runs side by side use both cores; each takes about 15 minutes.
 # Usage: bash experiments/fifteen/seeds.sh CATEGORY SEED NAME [--set KEY=VALUE ...]
-#   SEED seeds both stages; --set changes the first stage (a NAME ending in "-<N>steps" goes with --set
-#   max_steps=N). Writes runs/seeds/<category>--NAME--seed<SEED>/ and its card to
+#   SEED seeds both stages; --set changes the first stage; a NAME ending in "-<N>steps" stops the first stage
+#   after N steps instead of 2500. Writes runs/seeds/<category>--NAME--seed<SEED>/ and its card to
 #   experiments/fifteen/results/seeds/<category>--NAME--seed<SEED>.json (test scores as in every card).
 #   python experiments/fifteen/seeds_table.py tabulates the cards.
 set -euo pipefail
@@ -14,11 +14,13 @@ run="$category--$name--seed$seed"
 out="runs/seeds/$run"
 mkdir -p experiments/fifteen/results/seeds
 config="data_samples/checkpoints/configs/15min/$category.json"
-# a rate that falls over the recipe's 9 minutes falls over the 2500 steps instead
+steps=2500
+if [[ $name =~ -([0-9]+)steps$ ]]; then steps=${BASH_REMATCH[1]}; fi
+# a rate that falls over the recipe's 9 minutes falls over the steps instead
 schedule=$(python -c "import json, sys; s = json.load(open(sys.argv[1])).get('lr_schedule', 'constant'); \
 print('cosine' if s == 'cosine_minutes' else s)" "$config")
 python -m cuboidlib train --config "$config" --out "$out" --quiet --set num_threads=1 --set seed="$seed" \
-  --set max_steps=2500 --set max_minutes=60 --set lr_schedule="$schedule" "$@"
+  --set max_steps="$steps" --set max_minutes=60 --set lr_schedule="$schedule" "$@"
 python -m cuboidlib train --config "data_samples/checkpoints/configs/15min/finetune/$category.json" \
   --out "$out/finetune" --release "$out/released.pt" --quiet \
   --set init_from="$out/best.pt" --set num_threads=1 --set max_minutes=30 --set seed="$seed"
