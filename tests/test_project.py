@@ -338,8 +338,8 @@ def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
 
 def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     """experiments/fifteen/results/seeds/<category>--<name>--seed<seed>.json: each first stage is the recipe's but for
-    its seed, step budget and threads, and its learning rate: falling over the steps instead of the minutes, or
-    constant. The step budget is seeds.sh's 2500 unless the name ends in another ("-1900steps"). The page shows
+    its seed, step budget and threads, its learning rate (falling over the steps instead of the minutes, or
+    constant) and its compactness weight, which the second stage shares. The step budget is seeds.sh's 2500 unless the name ends in another ("-1900steps"). The page shows
     the table that seeds_table.py makes of them."""
     from cuboidlib.train import TrainConfig
 
@@ -352,8 +352,10 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
         first = _flat(json.loads(path.read_text())["initialised_from"]["config"])
         recipe = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{category}.json").to_dict())
         differ = {k for k, v in first.items() if v != recipe[k]}
-        allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule"}
+        allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule", "loss.lambda_compact"}
         assert differ <= allowed and first["seed"] == int(seed.removeprefix("seed")), (path.name, differ)
+        second = _flat(json.loads(path.read_text())["config"])  # seeds.sh --both: one weight in both stages
+        assert second["loss.lambda_compact"] == first["loss.lambda_compact"], path.name
         over_steps = "cosine" if recipe["lr_schedule"] == "cosine_minutes" else recipe["lr_schedule"]
         assert first["lr_schedule"] == ("constant" if name == "constant" else over_steps), path.name
         steps = re.search(r"-(\d+)steps$", name)  # e.g. "falling-1900steps"; else seeds.sh's 2500

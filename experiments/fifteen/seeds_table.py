@@ -1,9 +1,10 @@
 """The runs of ``seeds.sh`` as one Markdown table, from their cards.
 
-Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the first stage's learning rate
+Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the compactness weight
+lambda_1 (the second stage's; ``seeds.sh --both`` sets it in both stages), the first stage's learning rate
 and steps, the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the
 validation loss of the first-stage weights it kept (those the second stage starts from), and the network's test
-scores. A last row per learning rate and steps gives the mean over the seeds, and the mean over every pair of
+scores. A last row per weight, learning rate and steps gives the mean over the seeds, and the mean over every pair of
 seeds of the network whose first stage kept the lower validation loss: what a command would score that trained
 two first stages and went on with the one of lower loss. Usage::
 
@@ -17,10 +18,10 @@ from statistics import mean
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
-HEADER = ("| category | first-stage learning rate | first-stage steps | seed | first stage: validation mIoU %, last 1000 steps "
+HEADER = ("| category | lambda_1 | first-stage learning rate | first-stage steps | seed | first stage: validation mIoU %, last 1000 steps "
           "| first stage: kept weights' validation loss x1000 | test mIoU % | N_AC | CD x1000 | box distance "
           "| smallest part IoU % |")
-RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 
 
 def schedule(config: dict) -> str:
@@ -38,7 +39,8 @@ def scores(card: dict) -> dict:
     kept = next(v["loss"] for v in first["training"]["validation"] if v["step"] == first["training"]["selected_step"])
     net = card["test"]["results"][0]
     worst = min(net["part_iou"], key=net["part_iou"].get)
-    return {"category": first["config"]["category"], "lr": schedule(first["config"]), "steps": last,
+    return {"category": first["config"]["category"], "lambda": card["config"]["loss"]["lambda_compact"],
+            "lr": schedule(first["config"]), "steps": last,
             "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept, "miou": 100 * net["miou"],
             "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
             "worst": (worst, 100 * net["part_iou"][worst])}
@@ -46,7 +48,7 @@ def scores(card: dict) -> dict:
 
 def row(s: dict) -> str:
     """One run's row."""
-    return (f"| {s['category']} | {s['lr']} | {s['steps']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
+    return (f"| {s['category']} | {s['lambda']:g} | {s['lr']} | {s['steps']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
             f"| {s['kept_loss']:.2f} | {s['miou']:.1f} | {s['n_ac']:.2f} | {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
 
 
@@ -58,15 +60,16 @@ def lower_loss_of_two(runs: list[dict]) -> float:
 def mean_row(runs: list[dict]) -> str:
     """The mean over the seeds of one category, learning rate and steps."""
     choice = f" (of two by lower loss: {lower_loss_of_two(runs):.1f})" if len(runs) > 1 else ""
-    return (f"| {runs[0]['category']} | {runs[0]['lr']} | {runs[0]['steps']} | mean of {len(runs)} "
+    return (f"| {runs[0]['category']} | {runs[0]['lambda']:g} | {runs[0]['lr']} | {runs[0]['steps']} | mean of {len(runs)} "
             f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) | {mean(r['kept_loss'] for r in runs):.2f} "
             f"| **{mean(r['miou'] for r in runs):.1f}**{choice} | {mean(r['n_ac'] for r in runs):.2f} "
             f"| {mean(r['cd'] for r in runs):.2f} | {mean(r['box'] for r in runs):.4f} | |")
 
 
 def _group(s: dict) -> tuple:
-    """The runs averaged together: one category, learning rate and number of first-stage steps (most first)."""
-    return s["category"], s["lr"], -s["steps"]
+    """The runs averaged together: one category, compactness weight, learning rate and number of first-stage steps
+    (most first)."""
+    return s["category"], -s["lambda"], s["lr"], -s["steps"]
 
 
 def table(cards: list[Path]) -> list[str]:
