@@ -365,6 +365,21 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     assert block.group(1).strip() == "\n".join(table.table(cards))
 
 
+def test_the_tail_table_comes_from_tail_cuboids_and_the_page_shows_it():
+    """experiments/fifteen/results/tail_cuboids.json: rows of tail_cuboids.py for networks kept in the repository,
+    a short- and a long-tail row each; the page shows the table the script makes of them."""
+    fifteen = ROOT / "experiments" / "fifteen"
+    script = _script_module(fifteen / "tail_cuboids.py")
+    rows = json.loads((fifteen / "results" / "tail_cuboids.json").read_text())["rows"]
+    assert [r["kind"] for r in rows] == ["short", "long"] * (len(rows) // 2) and rows
+    for r in rows:
+        assert (ROOT / r["network"]).is_file(), r["network"]
+        assert 0 <= r["with_tail_cuboid"] <= r["animals"] and 0 <= r["named_tail_percent"] <= 100
+    block = re.search(r"<!-- tails:start -->\n(.*?)\n<!-- tails:end -->", (fifteen / "README.md").read_text(), re.S)
+    assert block is not None
+    assert block.group(1).strip() == "\n".join(script.table(rows))
+
+
 @pytest.mark.parametrize("stage", ["", "finetune/"])
 def test_the_15_minute_recipe_is_one_recipe_with_its_stated_exceptions(stage):
     """configs/15min/: the same settings for every category but M, the compactness weight and the animals'

@@ -6,12 +6,15 @@ transfer of the cards (20 % of the shapes labelled, seed 0) names "tail", and ho
 cuboid named "tail" at all. A short tail that shares a cuboid with the rump is named "body", and the tail's IoU
 falls with it. Usage::
 
-    python experiments/fifteen/tail_cuboids.py [CHECKPOINT ...]
+    python experiments/fifteen/tail_cuboids.py [CHECKPOINT ...] [--out results/tail_cuboids.json]
 
-Without arguments it reads the committed animal network and the two 15-minute animal networks kept in
-``results/`` (the recipe's, seed 0, and seed 1).
+Without checkpoints it reads the committed animal network and the two 15-minute animal networks kept in
+``results/`` (the recipe's, seed 0, and seed 1). It prints a Markdown table and writes its rows to ``--out``.
 """
 import argparse
+import json
+import os
+import sys
 from pathlib import Path
 
 import torch
@@ -55,19 +58,33 @@ def tail_recall(checkpoint: Path) -> dict:
     return out
 
 
+def table(rows: list[dict]) -> list[str]:
+    """The Markdown table of the rows that main() writes."""
+    lines = ["| network | tail kind | test animals scored | with a cuboid named tail | tail points per animal "
+             "| tail points named tail % | tail IoU % |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        lines.append(f"| `{r['network']}` | {r['kind']} | {r['animals']} | {r['with_tail_cuboid']} | "
+                     f"{r['tail_points']:.1f} | {r['named_tail_percent']:.1f} | {r['tail_iou_percent']:.1f} |")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoints", nargs="*", type=Path, default=list(DEFAULT))
+    parser.add_argument("--out", type=Path, default=ROOT / "experiments" / "fifteen" / "results" / "tail_cuboids.json")
     args = parser.parse_args()
-    print("| network | tail kind | test animals scored | with a cuboid named tail | tail points per animal "
-          "| tail points named tail % | tail IoU % |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    rows = []
     for path in args.checkpoints:
         r = tail_recall(path)
         shown = path.resolve().relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path
         for kind in ("short", "long"):
             n, with_cuboid, recall, size = r[kind]
-            print(f"| `{shown}` | {kind} | {n} | {with_cuboid} | {size:.1f} | {recall:.1f} | {r['tail IoU %']:.1f} |")
+            rows.append({"network": str(shown), "kind": kind, "animals": n, "with_tail_cuboid": with_cuboid,
+                         "tail_points": size, "named_tail_percent": recall, "tail_iou_percent": r["tail IoU %"]})
+    print("\n".join(table(rows)))
+    tmp = args.out.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"command": " ".join(["python", "experiments/fifteen/tail_cuboids.py", *sys.argv[1:]]), "rows": rows}, indent=1) + "\n")
+    os.replace(tmp, args.out)
 
 
 if __name__ == "__main__":
