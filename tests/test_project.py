@@ -339,8 +339,8 @@ def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
 def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     """experiments/fifteen/results/seeds/<category>--<name>--seed<seed>.json: each first stage is the recipe's but for
     its seed, step budget and threads, its learning rate (falling over the steps instead of the minutes, or
-    constant) and its compactness weight, which the second stage shares. The step budget is seeds.sh's 2500 unless the name ends in another ("-1900steps"). The page shows
-    the table that seeds_table.py makes of them."""
+    constant) and its compactness weight, which the second stage shares. The step budget is seeds.sh's 2500
+    unless the name ends in another ("-1900steps"). The page shows the table that seeds_table.py makes of them."""
     from cuboidlib.train import TrainConfig
 
     fifteen = ROOT / "experiments" / "fifteen"

@@ -18,9 +18,9 @@ from statistics import mean
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
-HEADER = ("| category | lambda_1 | first-stage learning rate | first-stage steps | seed | first stage: validation mIoU %, last 1000 steps "
-          "| first stage: kept weights' validation loss x1000 | test mIoU % | N_AC | CD x1000 | box distance "
-          "| smallest part IoU % |")
+HEADER = ("| category | lambda_1 | first-stage learning rate | first-stage steps | seed "
+          "| first stage: validation mIoU %, last 1000 steps | first stage: kept weights' validation loss x1000 "
+          "| test mIoU % | N_AC | CD x1000 | box distance | smallest part IoU % |")
 RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 
 
@@ -41,15 +41,17 @@ def scores(card: dict) -> dict:
     worst = min(net["part_iou"], key=net["part_iou"].get)
     return {"category": first["config"]["category"], "lambda": card["config"]["loss"]["lambda_compact"],
             "lr": schedule(first["config"]), "steps": last,
-            "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept, "miou": 100 * net["miou"],
+            "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept,
+            "miou": 100 * net["miou"],
             "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
             "worst": (worst, 100 * net["part_iou"][worst])}
 
 
 def row(s: dict) -> str:
     """One run's row."""
-    return (f"| {s['category']} | {s['lambda']:g} | {s['lr']} | {s['steps']} | {s['seed']} | {s['late'][0]:.1f}-{s['late'][1]:.1f} "
-            f"| {s['kept_loss']:.2f} | {s['miou']:.1f} | {s['n_ac']:.2f} | {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
+    return (f"| {s['category']} | {s['lambda']:g} | {s['lr']} | {s['steps']} | {s['seed']} "
+            f"| {s['late'][0]:.1f}-{s['late'][1]:.1f} | {s['kept_loss']:.2f} | {s['miou']:.1f} | {s['n_ac']:.2f} "
+            f"| {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
 
 
 def lower_loss_of_two(runs: list[dict]) -> float:
@@ -58,10 +60,12 @@ def lower_loss_of_two(runs: list[dict]) -> float:
 
 
 def mean_row(runs: list[dict]) -> str:
-    """The mean over the seeds of one category, learning rate and steps."""
+    """The mean over the seeds of one group of runs (:func:`_group`)."""
     choice = f" (of two by lower loss: {lower_loss_of_two(runs):.1f})" if len(runs) > 1 else ""
-    return (f"| {runs[0]['category']} | {runs[0]['lambda']:g} | {runs[0]['lr']} | {runs[0]['steps']} | mean of {len(runs)} "
-            f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) | {mean(r['kept_loss'] for r in runs):.2f} "
+    first = runs[0]
+    return (f"| {first['category']} | {first['lambda']:g} | {first['lr']} | {first['steps']} | mean of {len(runs)} "
+            f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) "
+            f"| {mean(r['kept_loss'] for r in runs):.2f} "
             f"| **{mean(r['miou'] for r in runs):.1f}**{choice} | {mean(r['n_ac'] for r in runs):.2f} "
             f"| {mean(r['cd'] for r in runs):.2f} | {mean(r['box'] for r in runs):.4f} | |")
 
@@ -73,7 +77,7 @@ def _group(s: dict) -> tuple:
 
 
 def table(cards: list[Path]) -> list[str]:
-    """The table's lines: the runs of each category, learning rate and steps by seed, then their mean."""
+    """The table's lines: the runs of each group (:func:`_group`) by seed, then their mean."""
     runs = sorted((scores(json.loads(p.read_text())) for p in cards), key=lambda s: (*_group(s), s["seed"]))
     lines = [HEADER, RULE]
     for i, run in enumerate(runs):

@@ -83,7 +83,8 @@ def main() -> None:
                          "tail_points": size, "named_tail_percent": recall, "tail_iou_percent": r["tail IoU %"]})
     print("\n".join(table(rows)))
     tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"command": " ".join(["python", "experiments/fifteen/tail_cuboids.py", *sys.argv[1:]]), "rows": rows}, indent=1) + "\n")
+    command = " ".join(["python", "experiments/fifteen/tail_cuboids.py", *sys.argv[1:]])
+    tmp.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
     os.replace(tmp, args.out)
 
 
