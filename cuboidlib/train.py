@@ -96,6 +96,9 @@ class TrainConfig(DataConfig):
             steps; or "cosine_minutes", the same over its ``max_minutes`` of training time, for a run that the
             clock ends (:meth:`Trainer.learning_rate`). Only the first two give the same run on every machine.
         lr_final: the last rate of the cosine schedules.
+        lr_warmup_steps: W >= 0, a linear warm-up (the course's, not the paper's): step k's rate is the schedule's
+            times (k + 1) / W for the first W steps, so that Adam's first steps from random weights are small.
+            0: none.
         selection: the weights ``best.pt`` holds: "validation_loss", those of the lowest validation loss, or
             "last", the last validated ones (for a falling learning rate).
         temperature_start, temperature_steps: the allocation warm-up (the course's, not the paper's): the
@@ -121,6 +124,7 @@ class TrainConfig(DataConfig):
     lr: float = 6e-4
     lr_schedule: str = "constant"
     lr_final: float = 0.0
+    lr_warmup_steps: int = 0
     selection: str = "validation_loss"
     temperature_start: float = 1.0
     temperature_steps: int = 0
@@ -174,6 +178,7 @@ class TrainConfig(DataConfig):
             raise ValueError(f"TrainConfig.temperature_start must be a number in [1, 100], got {t0!r}")
         self.temperature_start = float(t0)
         check_int(self.temperature_steps, "TrainConfig.temperature_steps", minimum=0)
+        check_int(self.lr_warmup_steps, "TrainConfig.lr_warmup_steps", minimum=0)
         if self.init_from is not None:
             self.init_from = str(self.init_from)
         if self.max_minutes is not None:
@@ -456,6 +461,7 @@ class Trainer:
 
         "cosine" follows the steps, so that a run is the same on every machine. "cosine_minutes" follows the
         time budget, so that a run stopped by ``max_minutes`` ends at ``lr_final`` on a slow machine as on a fast one.
+        During the first ``lr_warmup_steps`` steps the rate is scaled by (step + 1) / ``lr_warmup_steps``.
 
         Args:
             step: the step, 0-based.
@@ -465,11 +471,12 @@ class Trainer:
             The rate.
         """
         config = self.config
+        warm_up = min(1.0, (step + 1) / config.lr_warmup_steps) if config.lr_warmup_steps else 1.0
         by_minutes = config.lr_schedule == "cosine_minutes"
         if config.lr_schedule == "constant" or (not by_minutes and self.total_steps <= 1):
-            return config.lr
+            return warm_up * config.lr
         progress = min(time_used if by_minutes else step / (self.total_steps - 1), 1.0)
-        return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
+        return warm_up * (config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress)))
 
     def affinity_temperature(self, step: int) -> float:
         """The affinity temperature of an optimiser step: T_0 (T / T_0)^(step / S) during the warm-up, then T.

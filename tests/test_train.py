@@ -262,6 +262,20 @@ def test_cosine_schedule_goes_from_lr_to_lr_final_and_resumes_exactly(tmp_path, 
     assert Trainer(config.replace(lr_schedule="constant"), tmp_path / "c", quiet=True, splits=splits).learning_rate(7) == 1e-3
 
 
+def test_learning_rate_warm_up_rises_linearly_then_follows_the_schedule(tmp_path, tiny):
+    config, splits = tiny
+    constant = Trainer(config.replace(lr=1e-3, lr_warmup_steps=4), tmp_path / "c", quiet=True, splits=splits)
+    assert [constant.learning_rate(k) for k in range(6)] == pytest.approx([2.5e-4, 5e-4, 7.5e-4, 1e-3, 1e-3, 1e-3])
+    cosine = config.replace(lr=1e-3, lr_schedule="cosine", lr_final=1e-4, max_steps=10)
+    plain = Trainer(cosine, tmp_path / "p", quiet=True, splits=splits)
+    warm = Trainer(cosine.replace(lr_warmup_steps=3), tmp_path / "w", quiet=True, splits=splits)
+    assert [warm.learning_rate(k) for k in range(10)] == pytest.approx(
+        [plain.learning_rate(k) * min(1, (k + 1) / 3) for k in range(10)])
+    assert warm.learning_rate(9) == pytest.approx(1e-4)  # the cosine still ends at lr_final
+    with pytest.raises(ValueError, match="lr_warmup_steps must be"):
+        config.replace(lr_warmup_steps=-1)
+
+
 def test_cosine_minutes_schedule_falls_over_the_time_budget_and_cosine_ignores_the_clock(tmp_path, tiny, monkeypatch):
     config, splits = tiny
     seconds = iter(range(10**6))  # a clock that moves one second at every reading
