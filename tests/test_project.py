@@ -339,7 +339,7 @@ def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
 def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     """experiments/fifteen/results/seeds/<category>--<name>--seed<seed>.json: each first stage is the recipe's but for
     its seed, step budget and threads, its learning rate (falling over the steps instead of the minutes, or
-    constant) and its compactness weight, which the second stage shares. The step budget is seeds.sh's 2500
+    constant, with or without a warm-up) and its compactness weight, which the second stage shares. The step budget is seeds.sh's 2500
     unless the name ends in another ("-1900steps"). The page shows the table that seeds_table.py makes of them."""
     from cuboidlib.train import TrainConfig
 
@@ -352,7 +352,8 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
         first = _flat(json.loads(path.read_text())["initialised_from"]["config"])
         recipe = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{category}.json").to_dict())
         differ = {k for k, v in first.items() if v != recipe[k]}
-        allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule", "loss.lambda_compact"}
+        allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule", "lr_warmup_steps",
+                   "loss.lambda_compact"}
         assert differ <= allowed and first["seed"] == int(seed.removeprefix("seed")), (path.name, differ)
         second = _flat(json.loads(path.read_text())["config"])  # seeds.sh --both: one weight in both stages
         assert second["loss.lambda_compact"] == first["loss.lambda_compact"], path.name
@@ -376,6 +377,22 @@ def test_the_tail_table_comes_from_tail_cuboids_and_the_page_shows_it():
         assert (ROOT / r["network"]).is_file(), r["network"]
         assert 0 <= r["with_tail_cuboid"] <= r["animals"] and 0 <= r["named_tail_percent"] <= 100
     block = re.search(r"<!-- tails:start -->\n(.*?)\n<!-- tails:end -->", (fifteen / "README.md").read_text(), re.S)
+    assert block is not None
+    assert block.group(1).strip() == "\n".join(script.table(rows))
+
+
+def test_the_worst_fitted_table_comes_from_worst_fitted_and_the_page_shows_it():
+    """experiments/fifteen/results/worst_fitted.json: rows of worst_fitted.py for networks kept in the repository;
+    each K's part shares add up to 100 %, and the page shows the table the script makes of them."""
+    fifteen = ROOT / "experiments" / "fifteen"
+    script = _script_module(fifteen / "worst_fitted.py")
+    rows = json.loads((fifteen / "results" / "worst_fitted.json").read_text())["rows"]
+    assert rows
+    for r in rows:
+        assert (ROOT / r["network"]).is_file(), r["network"]
+        shares = [r[f"{part}_share_of_worst_percent"] for part in script.PARTS]
+        assert sum(shares) == pytest.approx(100) and 0 <= r["tail_points_among_worst_percent"] <= 100
+    block = re.search(r"<!-- worst:start -->\n(.*?)\n<!-- worst:end -->", (fifteen / "README.md").read_text(), re.S)
     assert block is not None
     assert block.group(1).strip() == "\n".join(script.table(rows))
 

@@ -25,10 +25,12 @@ RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- 
 
 
 def schedule(config: dict) -> str:
-    """The first stage's learning rate in words: "constant 0.002" or "falls 0.002 -> 2e-05"."""
-    if config["lr_schedule"] == "constant":
-        return f"constant {config['lr']:g}"
-    return f"falls {config['lr']:g} -> {config['lr_final']:g}"
+    """The first stage's learning rate in words: "constant 0.002" or "falls 0.002 -> 2e-05", and a warm-up's steps
+    where it has one ("falls 0.002 -> 2e-05 after a 300-step warm-up")."""
+    words = (f"constant {config['lr']:g}" if config["lr_schedule"] == "constant"
+             else f"falls {config['lr']:g} -> {config['lr_final']:g}")
+    warm_up = config.get("lr_warmup_steps", 0)  # cards older than the warm-up have no such field
+    return f"{words} after a {warm_up}-step warm-up" if warm_up else words
 
 
 def scores(card: dict) -> dict:
