@@ -339,7 +339,8 @@ def test_the_second_stage_runs_name_what_they_change_and_the_page_shows_them():
 def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     """experiments/fifteen/results/seeds/<category>--<name>--seed<seed>.json: each first stage is the recipe's but for
     its seed, step budget and threads, its learning rate (falling over the steps instead of the minutes, or
-    constant, with or without a warm-up) and its compactness weight, which the second stage shares. The step budget is seeds.sh's 2500
+    constant, with or without a warm-up), its existence weight and its compactness weight, which the second stage
+    shares. The step budget is seeds.sh's 2500
     unless the name ends in another ("-1900steps"). The page shows the table that seeds_table.py makes of them."""
     from cuboidlib.train import TrainConfig
 
@@ -353,7 +354,7 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
         recipe = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{category}.json").to_dict())
         differ = {k for k, v in first.items() if v != recipe[k]}
         allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule", "lr_warmup_steps",
-                   "loss.lambda_compact"}
+                   "loss.lambda_compact", "loss.lambda_exist"}
         assert differ <= allowed and first["seed"] == int(seed.removeprefix("seed")), (path.name, differ)
         second = _flat(json.loads(path.read_text())["config"])  # seeds.sh --both: one weight in both stages
         assert second["loss.lambda_compact"] == first["loss.lambda_compact"], path.name

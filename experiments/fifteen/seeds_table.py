@@ -1,8 +1,8 @@
 """The runs of ``seeds.sh`` as one Markdown table, from their cards.
 
 Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the compactness weight
-lambda_1 (the second stage's; ``seeds.sh --both`` sets it in both stages), the first stage's learning rate
-and steps, the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the
+lambda_1 (the second stage's; ``seeds.sh --both`` sets it in both stages), the first stage's learning rate,
+any other setting in which it differs from the recipe's first stage, its steps, the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the
 validation loss of the first-stage weights it kept (those the second stage starts from), and the network's test
 scores. A last row per weight, learning rate and steps gives the mean over the seeds, and the mean over every pair of
 seeds of the network whose first stage kept the lower validation loss: what a command would score that trained
@@ -16,21 +16,42 @@ from pathlib import Path
 from itertools import combinations
 from statistics import mean
 
+from cuboidlib.train import TrainConfig
+
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
-HEADER = ("| category | lambda_1 | first-stage learning rate | first-stage steps | seed "
+RECIPE = ROOT / "data_samples" / "checkpoints" / "configs" / "15min"
+#: First-stage fields that the table's columns show or that seeds.sh sets in every run.
+SHOWN = ("seed", "max_steps", "max_minutes", "num_threads", "lr_schedule", "lr_final", "lr", "loss.lambda_compact")
+HEADER = ("| category | lambda_1 | first-stage learning rate | other first-stage change | first-stage steps | seed "
           "| first stage: validation mIoU %, last 1000 steps | first stage: kept weights' validation loss x1000 "
           "| test mIoU % | N_AC | CD x1000 | box distance | smallest part IoU % |")
-RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+RULE = "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 
 
 def schedule(config: dict) -> str:
-    """The first stage's learning rate in words: "constant 0.002" or "falls 0.002 -> 2e-05", and a warm-up's steps
-    where it has one ("falls 0.002 -> 2e-05 after a 300-step warm-up")."""
-    words = (f"constant {config['lr']:g}" if config["lr_schedule"] == "constant"
-             else f"falls {config['lr']:g} -> {config['lr_final']:g}")
-    warm_up = config.get("lr_warmup_steps", 0)  # cards older than the warm-up have no such field
-    return f"{words} after a {warm_up}-step warm-up" if warm_up else words
+    """The first stage's learning rate in words: "constant 0.002" or "falls 0.002 -> 2e-05"."""
+    if config["lr_schedule"] == "constant":
+        return f"constant {config['lr']:g}"
+    return f"falls {config['lr']:g} -> {config['lr_final']:g}"
+
+
+def _flat(config: dict, prefix: str = "") -> dict:
+    """A config dict with its model and loss sections flattened to "model.k", "loss.lambda_exist", ..."""
+    out = {}
+    for key, value in config.items():
+        out.update(_flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+    return out
+
+
+def other_changes(config: dict) -> str:
+    """The first stage's settings that differ from the recipe's beyond the table's own columns and what seeds.sh
+    always sets, as "key value" ("-" for none)."""
+    recipe = TrainConfig.load_json(RECIPE / f"{config['category']}.json").to_dict()
+    ours = _flat(TrainConfig.from_dict(config).to_dict())  # defaults filled in for cards older than a field
+    changed = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in ours.items()
+               if k not in SHOWN and v != _flat(recipe)[k]]
+    return ", ".join(changed) or "-"
 
 
 def scores(card: dict) -> dict:
@@ -42,7 +63,7 @@ def scores(card: dict) -> dict:
     net = card["test"]["results"][0]
     worst = min(net["part_iou"], key=net["part_iou"].get)
     return {"category": first["config"]["category"], "lambda": card["config"]["loss"]["lambda_compact"],
-            "lr": schedule(first["config"]), "steps": last,
+            "lr": schedule(first["config"]), "other": other_changes(first["config"]), "steps": last,
             "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept,
             "miou": 100 * net["miou"],
             "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
@@ -51,7 +72,7 @@ def scores(card: dict) -> dict:
 
 def row(s: dict) -> str:
     """One run's row."""
-    return (f"| {s['category']} | {s['lambda']:g} | {s['lr']} | {s['steps']} | {s['seed']} "
+    return (f"| {s['category']} | {s['lambda']:g} | {s['lr']} | {s['other']} | {s['steps']} | {s['seed']} "
             f"| {s['late'][0]:.1f}-{s['late'][1]:.1f} | {s['kept_loss']:.2f} | {s['miou']:.1f} | {s['n_ac']:.2f} "
             f"| {s['cd']:.2f} | {s['box']:.4f} | {s['worst'][0]} {s['worst'][1]:.1f} |")
 
@@ -65,7 +86,8 @@ def mean_row(runs: list[dict]) -> str:
     """The mean over the seeds of one group of runs (:func:`_group`)."""
     choice = f" (of two by lower loss: {lower_loss_of_two(runs):.1f})" if len(runs) > 1 else ""
     first = runs[0]
-    return (f"| {first['category']} | {first['lambda']:g} | {first['lr']} | {first['steps']} | mean of {len(runs)} "
+    return (f"| {first['category']} | {first['lambda']:g} | {first['lr']} | {first['other']} | {first['steps']} "
+            f"| mean of {len(runs)} "
             f"| {mean(r['late'][1] - r['late'][0] for r in runs):.1f} (spread) "
             f"| {mean(r['kept_loss'] for r in runs):.2f} "
             f"| **{mean(r['miou'] for r in runs):.1f}**{choice} | {mean(r['n_ac'] for r in runs):.2f} "
@@ -73,9 +95,9 @@ def mean_row(runs: list[dict]) -> str:
 
 
 def _group(s: dict) -> tuple:
-    """The runs averaged together: one category, compactness weight, learning rate and number of first-stage steps
-    (most first)."""
-    return s["category"], -s["lambda"], s["lr"], -s["steps"]
+    """The runs averaged together: one category, compactness weight, learning rate, other change and number of
+    first-stage steps (most first)."""
+    return s["category"], -s["lambda"], s["lr"], s["other"], -s["steps"]
 
 
 def table(cards: list[Path]) -> list[str]:
