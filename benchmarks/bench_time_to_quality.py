@@ -10,7 +10,7 @@ Then it prints, against the wall time since the command started, every validatio
 label transfer within the validation split, N_AC, box distance) and the Chamfer distance on the validation
 split of each stage's selected weights, and last the released network's test scores against the course's
 targets. The recipe is sized to end within 15 minutes on a 2-core machine (a 9-minute first stage, a 500-step
-second stage; its commands took 11-12 minutes on a quiet one). ``--budget B`` gives the first stage ``B - 15``
+second stage, 1000 steps for animals; its commands took 11-14 minutes on a quiet one). ``--budget B`` gives the first stage ``B - 15``
 minutes more (or less). Time it on a quiet machine: the command takes every core that other processes leave
 free.
 

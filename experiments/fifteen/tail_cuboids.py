@@ -27,7 +27,7 @@ from cuboidlib.train import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT = (ROOT / "data_samples" / "checkpoints" / "animal.pt",
-           ROOT / "experiments" / "fifteen" / "results" / "animal_15min.pt",
+           ROOT / "experiments" / "fifteen" / "results" / "second500" / "animal_15min.pt",
            ROOT / "experiments" / "fifteen" / "results" / "consistency0" / "animal_seed1_15min.pt")
 
 

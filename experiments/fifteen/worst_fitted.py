@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results"
 PARTS = ("body", "leg", "head", "tail")  # the animals' part labels, in their order
 DEFAULT = (RESULTS / "first_stage" / "animal.pt", RESULTS / "first_stage" / "animal_lambda001_seed0.pt",
-           RESULTS / "animal_15min.pt")
+           RESULTS / "second500" / "animal_15min.pt")
 
 
 def worst_fitted(checkpoint: Path, ks: list[int]) -> list[dict]:
