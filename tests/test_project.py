@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 import tomllib
 from pathlib import Path
 
@@ -308,12 +309,17 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 
 def _script_module(path: Path):
-    """A script of experiments/ imported as a module (its main() is not run)."""
+    """A script of experiments/ imported as a module (its main() is not run), with its folder on the import path
+    while it loads, as when it runs: a script may import a sibling script."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location(path.stem, path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(path.parent))
     return module
 
 

@@ -20,11 +20,11 @@ RULE = "| --- | --- | --- | --- | --- | --- | --- |"
 PLUMBING = ("init_from", "num_threads", "max_minutes")
 
 
-def _flat(config: dict, prefix: str = "") -> dict:
+def flat_config(config: dict, prefix: str = "") -> dict:
     """A config dict with its model and loss sections flattened to "model.k", "loss.lambda_compact", ..."""
     out = {}
     for key, value in config.items():
-        out.update(_flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+        out.update(flat_config(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
     return out
 
 
@@ -32,7 +32,7 @@ def changed_settings(config: dict) -> str:
     """The fields of a second stage's config that differ from the recipe's, or "the recipe"."""
     recipe = TrainConfig.load_json(ROOT / "data_samples" / "checkpoints" / "configs" / "15min" / "finetune"
                                    / f"{config['category']}.json").to_dict()
-    mine, theirs = _flat(config), _flat(recipe)
+    mine, theirs = flat_config(config), flat_config(recipe)
     shown = [f"{key.split('.')[-1]} {mine[key]:g}" if isinstance(mine[key], float) else
              f"{key.split('.')[-1]} {mine[key]}" for key in sorted(mine)
              if key not in PLUMBING and mine[key] != theirs.get(key)]

@@ -17,6 +17,7 @@ from itertools import combinations
 from statistics import mean
 
 from cuboidlib.train import TrainConfig
+from second_stage_table import flat_config
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "seeds"
@@ -36,21 +37,13 @@ def schedule(config: dict) -> str:
     return f"falls {config['lr']:g} -> {config['lr_final']:g}"
 
 
-def _flat(config: dict, prefix: str = "") -> dict:
-    """A config dict with its model and loss sections flattened to "model.k", "loss.lambda_exist", ..."""
-    out = {}
-    for key, value in config.items():
-        out.update(_flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
-    return out
-
-
 def other_changes(config: dict) -> str:
     """The first stage's settings that differ from the recipe's beyond the table's own columns and what seeds.sh
     always sets, as "key value" ("-" for none)."""
     recipe = TrainConfig.load_json(RECIPE / f"{config['category']}.json").to_dict()
-    ours = _flat(TrainConfig.from_dict(config).to_dict())  # defaults filled in for cards older than a field
+    ours = flat_config(TrainConfig.from_dict(config).to_dict())  # defaults filled in for cards older than a field
     changed = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in ours.items()
-               if k not in SHOWN and v != _flat(recipe)[k]]
+               if k not in SHOWN and v != flat_config(recipe)[k]]
     return ", ".join(changed) or "-"
 
 

@@ -68,6 +68,19 @@ def table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def shown_path(path: Path) -> str:
+    """A checkpoint's path as the tables show it: relative to the repository where it lies inside."""
+    return str(path.resolve().relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path)
+
+
+def write_rows(out: Path, script: str, rows: list[dict]) -> None:
+    """Write the rows and the command line that made them to ``out`` (atomically)."""
+    tmp = out.with_suffix(".tmp")
+    command = " ".join(["python", f"experiments/fifteen/{script}", *sys.argv[1:]])
+    tmp.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
+    os.replace(tmp, out)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoints", nargs="*", type=Path, default=list(DEFAULT))
@@ -76,16 +89,12 @@ def main() -> None:
     rows = []
     for path in args.checkpoints:
         r = tail_recall(path)
-        shown = path.resolve().relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path
         for kind in ("short", "long"):
             n, with_cuboid, recall, size = r[kind]
-            rows.append({"network": str(shown), "kind": kind, "animals": n, "with_tail_cuboid": with_cuboid,
+            rows.append({"network": shown_path(path), "kind": kind, "animals": n, "with_tail_cuboid": with_cuboid,
                          "tail_points": size, "named_tail_percent": recall, "tail_iou_percent": r["tail IoU %"]})
     print("\n".join(table(rows)))
-    tmp = args.out.with_suffix(".tmp")
-    command = " ".join(["python", "experiments/fifteen/tail_cuboids.py", *sys.argv[1:]])
-    tmp.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
-    os.replace(tmp, args.out)
+    write_rows(args.out, "tail_cuboids.py", rows)
 
 
 if __name__ == "__main__":

@@ -14,9 +14,6 @@ lambda_1 = 0.02, and a falling rate with lambda_1 = 0.01), whose networks give n
 recipe's 15-minute animal. It prints a Markdown table and writes its rows to ``--out``.
 """
 import argparse
-import json
-import os
-import sys
 from pathlib import Path
 
 import torch
@@ -27,6 +24,7 @@ from cuboidlib.distance import point_to_cuboid_distance
 from cuboidlib.evaluation import label_transfer_split, predict_cuboids
 from cuboidlib.shapes import make_collection
 from cuboidlib.train import TrainConfig
+from tail_cuboids import shown_path, write_rows
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results"
@@ -84,13 +82,9 @@ def main() -> None:
     args = parser.parse_args()
     rows = []
     for path in args.checkpoints:
-        shown = path.resolve().relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path
-        rows += [{"network": str(shown), **r} for r in worst_fitted(path, args.k)]
+        rows += [{"network": shown_path(path), **r} for r in worst_fitted(path, args.k)]
     print("\n".join(table(rows)))
-    tmp = args.out.with_suffix(".tmp")
-    command = " ".join(["python", "experiments/fifteen/worst_fitted.py", *sys.argv[1:]])
-    tmp.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
-    os.replace(tmp, args.out)
+    write_rows(args.out, "worst_fitted.py", rows)
 
 
 if __name__ == "__main__":
