@@ -979,10 +979,10 @@ def _print_plan(experiment: Experiment, runs: list, scale, args, estimate: float
     words = ("QUICK: tiny network, numbers meaningless" if scale.quick else
              "the 15-minute recipe's scale" if scale.recipe == FIFTEEN_MINUTES else "course scale")
     second = runs[0].finetune.max_steps if runs[0].finetune is not None else 0
-    print(f"{len(runs)} runs ({words}), "
-          + (f"{scale.steps}{f' + {second}' if second else ''} training steps each, " if trains else "no training, ")
-          + f"{scale.n_shapes} shapes per collection, "
-          f"seeds {list(scale.seeds)}, {args.jobs} at a time"
+    print(f"{len(runs)} run{'' if len(runs) == 1 else 's'} ({words}), "
+          + (f"{scale.steps}{f' + {second}' if second else ''} training steps each, "
+             f"{scale.n_shapes} shapes per collection, " if trains else "no training, ")
+          + f"seeds {list(scale.seeds)}, {args.jobs} at a time"
           + ("" if scale.quick else f"; estimated wall time on a quiet 2-core machine: {estimate / 60:.1f} min"),
           flush=True)
 
