@@ -2,7 +2,8 @@
 
 Each card is ``results/seeds/<category>--<name>--seed<seed>.json``. A row gives the compactness weight
 lambda_1 (the second stage's; ``seeds.sh --both`` sets it in both stages), the first stage's learning rate,
-any other setting in which it differs from the recipe's first stage, its steps, the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the
+any other setting in which it differs from the recipe's first stage (a first-stage lambda_1 that differs from
+the second stage's among them), its steps, the seed, how far the first stage's validation mIoU still moved over its last 1000 steps, the
 validation loss of the first-stage weights it kept (those the second stage starts from), and the network's test
 scores. A last row per weight, learning rate and steps gives the mean over the seeds, and the mean over every pair of
 seeds of the network whose first stage kept the lower validation loss: what a command would score that trained
@@ -37,13 +38,16 @@ def schedule(config: dict) -> str:
     return f"falls {config['lr']:g} -> {config['lr_final']:g}"
 
 
-def other_changes(config: dict) -> str:
+def other_changes(config: dict, lambda_second: float) -> str:
     """The first stage's settings that differ from the recipe's beyond the table's own columns and what seeds.sh
-    always sets, as "key value" ("-" for none)."""
+    always sets, as "key value" ("-" for none); its lambda_1 too where it differs from the second stage's,
+    ``lambda_second`` (``seeds.sh --set loss.lambda_compact=...``)."""
     recipe = TrainConfig.load_json(RECIPE / f"{config['category']}.json").to_dict()
     ours = flat_config(TrainConfig.from_dict(config).to_dict())  # defaults filled in for cards older than a field
     changed = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in ours.items()
                if k not in SHOWN and v != flat_config(recipe)[k]]
+    if ours["loss.lambda_compact"] != lambda_second:
+        changed.append(f"first-stage lambda_1 {ours['loss.lambda_compact']:g}")
     return ", ".join(changed) or "-"
 
 
@@ -56,7 +60,8 @@ def scores(card: dict) -> dict:
     net = card["test"]["results"][0]
     worst = min(net["part_iou"], key=net["part_iou"].get)
     return {"category": first["config"]["category"], "lambda": card["config"]["loss"]["lambda_compact"],
-            "lr": schedule(first["config"]), "other": other_changes(first["config"]), "steps": last,
+            "lr": schedule(first["config"]),
+            "other": other_changes(first["config"], card["config"]["loss"]["lambda_compact"]), "steps": last,
             "seed": first["config"]["seed"], "late": (min(late), max(late)), "kept_loss": 1000 * kept,
             "miou": 100 * net["miou"],
             "n_ac": net["n_ac"], "cd": 1000 * net["chamfer"][0]["value"], "box": net["box_distance"],
