@@ -356,20 +356,21 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     assert len(cards) >= 2
     for path in cards:
         category, name, seed = path.stem.split("--")
-        first = _flat(json.loads(path.read_text())["initialised_from"]["config"])
+        card = json.loads(path.read_text())
+        first = _flat(card["initialised_from"]["config"])
         recipe = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{category}.json").to_dict())
         differ = {k for k, v in first.items() if v != recipe[k]}
         allowed = {"seed", "max_steps", "max_minutes", "num_threads", "lr_schedule", "lr_warmup_steps",
                    "loss.lambda_compact", "loss.lambda_exist"}
         assert differ <= allowed and first["seed"] == int(seed.removeprefix("seed")), (path.name, differ)
-        second = _flat(json.loads(path.read_text())["config"])  # seeds.sh --both: one weight in both stages
+        second = _flat(card["config"])  # seeds.sh --both: one weight in both stages
         recipe_second = _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / "finetune" / f"{category}.json")
                               .to_dict())
         lambda_1 = first["loss.lambda_compact"]
         assert second["loss.lambda_compact"] in (lambda_1, recipe_second["loss.lambda_compact"]), path.name
         only_first = second["loss.lambda_compact"] != lambda_1  # seeds.sh --set: the first stage's alone
         assert (f"first-stage lambda_1 {lambda_1:g}" in table.other_changes(
-            json.loads(path.read_text())["initialised_from"]["config"], second["loss.lambda_compact"])) == only_first
+            card["initialised_from"]["config"], second["loss.lambda_compact"])) == only_first
         over_steps = "cosine" if recipe["lr_schedule"] == "cosine_minutes" else recipe["lr_schedule"]
         assert first["lr_schedule"] == ("constant" if name == "constant" else over_steps), path.name
         steps = re.search(r"-(\d+)steps$", name)  # e.g. "falling-1900steps"; else seeds.sh's 2500

@@ -42,10 +42,10 @@ def other_changes(config: dict, lambda_second: float) -> str:
     """The first stage's settings that differ from the recipe's beyond the table's own columns and what seeds.sh
     always sets, as "key value" ("-" for none); its lambda_1 too where it differs from the second stage's,
     ``lambda_second`` (``seeds.sh --set loss.lambda_compact=...``)."""
-    recipe = TrainConfig.load_json(RECIPE / f"{config['category']}.json").to_dict()
+    recipe = flat_config(TrainConfig.load_json(RECIPE / f"{config['category']}.json").to_dict())
     ours = flat_config(TrainConfig.from_dict(config).to_dict())  # defaults filled in for cards older than a field
     changed = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in ours.items()
-               if k not in SHOWN and v != flat_config(recipe)[k]]
+               if k not in SHOWN and v != recipe[k]]
     if ours["loss.lambda_compact"] != lambda_second:
         changed.append(f"first-stage lambda_1 {ours['loss.lambda_compact']:g}")
     return ", ".join(changed) or "-"
