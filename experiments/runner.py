@@ -205,6 +205,9 @@ FIFTEEN_MINUTES = "15min"
 FIFTEEN_MINUTE_STEPS = 2500
 #: The 15-minute recipe's number of shapes per category (its configs').
 FIFTEEN_MINUTE_SHAPES = 1000
+#: The 15-minute recipe that ``--recipe 15min`` trains: a copy of ``data_samples/checkpoints/configs/15min/``
+#: as it was when the 15-minute ablations began, so that retrained networks cannot change runs in progress.
+RECIPE_DIR = Path(__file__).with_name("recipes") / FIFTEEN_MINUTES
 
 
 def recipe_configs(category: str, steps: int, **changes) -> tuple[TrainConfig, TrainConfig]:
@@ -217,7 +220,7 @@ def recipe_configs(category: str, steps: int, **changes) -> tuple[TrainConfig, T
     """
     if category not in COURSE_NUM_CUBOIDS:
         raise ValueError(f"category must be one of {tuple(COURSE_NUM_CUBOIDS)}, got {category!r}")
-    folder = checkpoint_dir() / "configs" / FIFTEEN_MINUTES
+    folder = RECIPE_DIR
     first = TrainConfig.load_json(folder / f"{category}.json")
     schedule = "cosine" if first.lr_schedule == "cosine_minutes" else first.lr_schedule  # falls over the steps
     first = first.replace(max_steps=steps, max_minutes=None, lr_schedule=schedule, num_threads=1,
@@ -856,6 +859,23 @@ def categories_option(allowed: Sequence[str]):
         bad = [c for c in chosen if c not in allowed]
         if bad or not chosen:
             raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(allowed)}, got {text!r}")
+        return chosen
+
+    return parse
+
+
+def float_list_option(allowed: Sequence[float]):
+    """An argparse type for a comma-separated list of numbers out of ``allowed``."""
+
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            chosen = tuple(dict.fromkeys(float(c) for c in text.split(",") if c.strip()))
+        except ValueError:
+            chosen = ()
+        bad = [c for c in chosen if c not in allowed]
+        if bad or not chosen:
+            raise argparse.ArgumentTypeError(
+                f"expected a comma-separated list of {', '.join(map(str, allowed))}, got {text!r}")
         return chosen
 
     return parse

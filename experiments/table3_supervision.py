@@ -55,12 +55,13 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
     for category in args.categories:
         for variant, (loss, segmentation) in VARIANTS.items():
             for seed in scale.seeds:
-                config = scale.config(category, seed, loss={**loss, "lambda_compact": args.lambda_compact})
+                changes = {"loss": {**loss, "lambda_compact": args.lambda_compact}}
+                config = scale.config(category, seed, **changes)
                 options = {"method": variant} if segmentation is None else {"method": variant,
                                                                               "segmentation": segmentation}
                 runs.append(runner.Run(f"{category}_{variant}_seed{seed}",
                                        {"category": category, "variant": variant, "seed": seed}, config,
-                                       options=options))
+                                       options=options, finetune=scale.finetune_config(category, seed, **changes)))
     return runs
 
 
@@ -94,6 +95,7 @@ EXPERIMENT = runner.Experiment(
     report=report,
     add_arguments=add_arguments,
     notes=notes,
+    recipes=("course", runner.FIFTEEN_MINUTES),
 )
 
 if __name__ == "__main__":

@@ -41,15 +41,32 @@ PAPER = {
 }
 
 
+def column_name(column: str, sigma_s: float) -> str:
+    """A column's name on the command line: Distance, Normal-0, Normal-0.025, Normal-0.05."""
+    return column if column == "Distance" else f"{column}-{sigma_s:g}"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--noise", type=runner.float_list_option(NOISE), default=NOISE,
+                   help="comma-separated subset of the noise levels sigma_n " + ",".join(map(str, NOISE)) + " (default: all)")
+    names = [column_name(c, s) for c, _, s in COLUMNS]
+    p.add_argument("--columns", type=runner.categories_option(tuple(names)), default=tuple(names),
+                   help="comma-separated subset of the columns " + ",".join(names) + " (default: all)")
+
+
 def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run]:
     runs = []
-    for sigma_n in NOISE:
+    noise, columns = getattr(args, "noise", NOISE), getattr(args, "columns", None)  # Fig. 9 passes its own args
+    for sigma_n in noise:
         for column, distance, sigma_s in COLUMNS:
+            if columns is not None and column_name(column, sigma_s) not in columns:
+                continue
             for seed in scale.seeds:
-                config = scale.config("chair", seed, loss={"distance": distance, "sigma_s": sigma_s})
+                loss = {"loss": {"distance": distance, "sigma_s": sigma_s}}
+                config = scale.config("chair", seed, **loss)
                 key = {"sigma_n": sigma_n, "distance": column, "sigma_s": sigma_s, "seed": seed}
                 runs.append(runner.Run(f"noise{sigma_n:g}_{column}_s{sigma_s:g}_seed{seed}", key, config,
-                                       options={"sigma_n": sigma_n}))
+                                       options={"sigma_n": sigma_n}, finetune=scale.finetune_config("chair", seed, **loss)))
     return runs
 
 
@@ -98,7 +115,9 @@ EXPERIMENT = runner.Experiment(
     default_seeds=1,
     build_runs=build_runs,
     report=report,
+    add_arguments=add_arguments,
     notes=notes,
+    recipes=("course", runner.FIFTEEN_MINUTES),
 )
 
 if __name__ == "__main__":

@@ -39,7 +39,8 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
         for m in NUM_CUBOIDS:
             for seed in scale.seeds:
                 runs.append(runner.Run(f"{category}_M{m}_seed{seed}", {"category": category, "M": m, "seed": seed},
-                                       scale.config(category, seed, model={"num_cuboids": m})))
+                                       scale.config(category, seed, model={"num_cuboids": m}),
+                                       finetune=scale.finetune_config(category, seed, model={"num_cuboids": m})))
     return runs
 
 
@@ -76,6 +77,7 @@ EXPERIMENT = runner.Experiment(
     report=report,
     add_arguments=add_arguments,
     notes=notes,
+    recipes=("course", runner.FIFTEEN_MINUTES),
 )
 
 if __name__ == "__main__":

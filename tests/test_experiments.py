@@ -243,10 +243,37 @@ def test_table5_has_exactly_the_four_lambdas_with_three_seeds():
     assert [r.config.loss_config.compactness_average for r in quick if r.key["form"] == "sum"] == [False]
 
 
+@pytest.mark.parametrize("module, argv, n_runs, changed", [
+    (table3, ("--categories", "chair"), 9, lambda c: (c.loss_config.allocation, c.loss_config.distance,
+                                                      c.loss_config.lambda_compact)),
+    (table4, ("--noise", "0,0.03", "--columns", "Normal-0,Normal-0.05"), 12,
+     lambda c: (c.loss_config.distance, c.loss_config.sigma_s)),
+    (table6, ("--categories", "chair"), 15, lambda c: c.model_config.num_cuboids),
+])
+def test_the_15_minute_ablations_change_both_stages_alike(module, argv, n_runs, changed):
+    """Tables 3, 4 and 6 at the 15-minute recipe's scale (experiments/ablations_15min.sh): each cell's change
+    reaches both stages, which are otherwise the pinned recipe's."""
+    _, runs = _runs(module, "--recipe", "15min", "--seeds", "3", *argv)
+    assert len(runs) == n_runs and len({r.name for r in runs}) == n_runs
+    first, second = runner.recipe_configs("chair", runner.FIFTEEN_MINUTE_STEPS)
+    for r in runs:
+        assert r.finetune is not None and changed(r.config) == changed(r.finetune)
+        assert r.config.n_shapes == first.n_shapes and r.finetune.max_steps == second.max_steps
+    assert len({tuple(sorted((k, v) for k, v in r.key.items() if k != "seed")) for r in runs}) == n_runs // 3
+
+
+def test_table4_takes_a_subset_of_its_rows_and_columns():
+    _, runs = _runs(table4, "--noise", "0.03", "--columns", "Distance")
+    assert _keys(runs, "sigma_n", "distance", "sigma_s") == {(0.03, "Distance", 0.0)}
+    for bad in (["--noise", "0.5"], ["--columns", "Normal-0.1"], ["--noise", "x"]):
+        with pytest.raises(SystemExit):
+            table4.EXPERIMENT.parser().parse_args(bad)
+
+
 def test_table5_at_the_15_minute_recipes_scale_trains_both_stages_with_each_lambda():
     scale, runs = _runs(table5, "--recipe", "15min")
     assert (scale.steps, scale.n_shapes, scale.recipe) == (runner.FIFTEEN_MINUTE_STEPS, 1000, "15min")
-    recipe = ROOT / "data_samples" / "checkpoints" / "configs" / "15min"
+    recipe = runner.RECIPE_DIR
     first, second = TrainConfig.load_json(recipe / "chair.json"), TrainConfig.load_json(recipe / "finetune" / "chair.json")
     assert len(runs) == 12
     for r in runs:

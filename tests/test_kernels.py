@@ -8,6 +8,12 @@ they are found fails here.
 """
 
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 import torch
@@ -251,3 +257,130 @@ def test_enable_without_a_compiler_says_so_and_leaves_the_python_code_on(monkeyp
 def test_train_config_rejects_a_non_boolean_switch():
     with pytest.raises(ValueError, match="compiled_kernels must be true, false or null"):
         TrainConfig(compiled_kernels="yes")
+
+
+# ----------------------------------------------------------------------------------------------
+# The build: a folder per source, flags, compiler, torch and Python; the project's own lock
+# ----------------------------------------------------------------------------------------------
+
+
+def _hold_lock(path, pid_text="4242"):
+    """A separate process that holds an exclusive flock on ``path`` until it is killed (as a build does)."""
+    code = ("import fcntl, sys, time\n"
+            "f = open(sys.argv[1], 'a+'); fcntl.flock(f.fileno(), fcntl.LOCK_EX)\n"
+            "f.seek(0); f.truncate(); f.write(sys.argv[2] + '\\n'); f.flush()\n"
+            "print('locked', flush=True); time.sleep(120)\n")
+    process = subprocess.Popen([sys.executable, "-c", code, str(path), pid_text], stdout=subprocess.PIPE, text=True)
+    assert process.stdout.readline().strip() == "locked"
+    return process
+
+
+needs_flock = pytest.mark.skipif(sys.platform == "win32", reason="the build lock is a POSIX flock")
+
+
+@needs_flock
+@pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL])
+def test_a_lock_whose_process_is_gone_is_taken_over_at_once(tmp_path, how):
+    path = tmp_path / "k.lock"
+    holder = _hold_lock(path)
+    holder.send_signal(how)
+    holder.wait(timeout=30)
+    start = time.monotonic()
+    with kernels._BuildLock(path):
+        assert path.read_text().split() == [str(os.getpid())], "the lock file names its holder"
+    assert time.monotonic() - start < 5
+
+
+@needs_flock
+def test_a_live_lock_is_waited_for_with_a_notice_then_the_python_code_runs(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    monkeypatch.delenv(kernels.ENV, raising=False)
+    monkeypatch.setattr(kernels, "_enabled", None)
+    monkeypatch.setattr(kernels, "_module", None)
+    monkeypatch.setattr(kernels, "available", lambda: True)
+    monkeypatch.setattr(kernels, "_compiler", lambda: "/usr/bin/c++")
+    monkeypatch.setattr("torch.utils.cpp_extension.is_ninja_available", lambda: True)
+    monkeypatch.setattr(kernels, "LOCK_WAIT_SECONDS", 1.0)
+    monkeypatch.setattr(kernels, "LOCK_NOTICE_SECONDS", 0.3)
+    name, _ = kernels._build_flags()
+    holder = _hold_lock(tmp_path / f"{name}.lock", "4242")
+    try:
+        assert not kernels.enabled()
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 2, lines
+    assert "waiting for another process (pid 4242)" in lines[0] and f"{name}.lock" in lines[0]
+    assert "compiled kernels are not used" in lines[1] and "pid 4242" in lines[1] and "PyTorch code runs" in lines[1]
+
+
+@pytest.mark.parametrize("leftover", [True, False])
+def test_a_build_never_waits_on_the_lock_file_pytorch_leaves_behind(tmp_path, monkeypatch, leftover):
+    """torch's FileBaton ``lock`` records no process: one left by a killed build made load() wait forever."""
+    folder = tmp_path / "cuboidlib_kernels_x"
+    folder.mkdir()
+    if leftover:
+        (folder / "lock").write_text("")
+    seen = {}
+
+    def fake_load(name, sources, extra_cflags, build_directory, verbose):
+        seen["lock"] = (Path(build_directory) / "lock").exists()
+        seen["folder"] = build_directory
+        return "module"
+
+    monkeypatch.setattr("torch.utils.cpp_extension.load", fake_load)
+    assert kernels._load("cuboidlib_kernels_x", ["-O3"], folder) == "module"
+    assert seen == {"lock": False, "folder": str(folder)}
+
+
+def test_a_failed_build_raises_kernels_unavailable_with_the_cause(tmp_path, monkeypatch):
+    def failing_load(*args, **kwargs):
+        raise RuntimeError("Error building extension: g++ exited with 1")
+
+    monkeypatch.setattr("torch.utils.cpp_extension.load", failing_load)
+    with pytest.raises(kernels.KernelsUnavailable, match="failed: Error building extension"):
+        kernels._load("n", [], tmp_path)
+
+
+def test_the_build_folder_is_named_by_the_source_flags_torch_and_python(tmp_path, monkeypatch):
+    name, flags = kernels._build_flags()
+    assert name.startswith("cuboidlib_kernels_") and name.isidentifier()
+    assert kernels._build_flags() == (name, flags), "the same inputs give the same name"
+    names = {name}
+    edited = tmp_path / "kernels.cpp"
+    edited.write_bytes(kernels._SOURCE.read_bytes() + b"\n// edited\n")
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "_SOURCE", edited)
+        names.add(kernels._build_flags()[0])
+    with monkeypatch.context() as m:
+        m.setattr(torch, "__version__", "0.0.0")
+        names.add(kernels._build_flags()[0])
+    with monkeypatch.context() as m:
+        other_abi = not torch.compiled_with_cxx11_abi()
+        m.setattr(torch, "compiled_with_cxx11_abi", lambda: other_abi)
+        names.add(kernels._build_flags()[0])
+    with monkeypatch.context() as m:
+        m.setitem(kernels._VECTOR_FLAGS, torch.backends.cpu.get_cpu_capability(), ["-mfake"])
+        names.add(kernels._build_flags()[0])
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "_compiler", lambda: "/opt/other/clang++")
+        names.add(kernels._build_flags()[0])
+    assert len(names) == 6, "each input changes the folder's name"
+
+
+@pytest.mark.parametrize("value", ["garbage", "2", "enable", "o n"])
+def test_an_unknown_environment_value_is_refused_with_the_choices(monkeypatch, value):
+    monkeypatch.setenv(kernels.ENV, value)
+    monkeypatch.setattr(kernels, "_enabled", None)
+    with pytest.raises(ValueError, match=f"{kernels.ENV}=.* is not understood; expected one of 0, off"):
+        kernels.enabled()
+
+
+def test_the_environment_asking_for_the_kernels_raises_where_they_cannot_be_built(monkeypatch):
+    monkeypatch.setenv(kernels.ENV, "1")
+    monkeypatch.setattr(kernels, "_enabled", None)
+    monkeypatch.setattr(kernels, "_module", None)
+    monkeypatch.setattr(kernels, "_compiler", lambda: None)
+    with pytest.raises(kernels.KernelsUnavailable, match="no C\\+\\+ compiler"):
+        kernels.enabled()
