@@ -51,6 +51,11 @@ AIRPLANES = ["a320/glTF2/A319.glb", "a320/glTF2/A320.glb", "a320/glTF2/A321.glb"
              "e190/glTF2/E170.glb", "e190/glTF2/E190.glb", "pa18/glTF2/PA18.glb", "pa28/glTF2/PA28.glb",
              "pa32/glTF2/PA32.glb", "pc12/glTF2/PC12.glb", "sr22/glTF2/SR22.glb"]
 
+# Licence per FlightAirMap folder: its own licence file where it has one (atr72: GPL-3.0; atr42, b748, b752,
+# crj9, e190: GPL-2 or later), else the FlightGear aircraft's GPL-2.0-or-later (the repository README names
+# FlightGear / FGMEMBERS as the source and has no licence file of its own).
+AIRPLANE_LICENCE = {"atr72": "GPL-3.0-or-later"}
+
 ANIMALS = ["Alpaca", "Bull", "Cow", "Deer", "Donkey", "Fox", "Horse", "Husky", "ShibaInu", "Stag", "Wolf"]
 
 # Hand corrections after looking at the pictures: {shape id: {name: part}}.
@@ -295,7 +300,7 @@ def build(roots: dict[str, Path]) -> list[dict]:
         parts.update(OVERRIDES.get(sid, {}))
         folder = path.split("/")[0]
         shapes.append(_entry(sid, "airplane", "flightairmap", FLIGHTAIRMAP, path,
-                             "GPL-2.0-or-later" if folder != "pc21" else "GPL-3.0-or-later",
+                             AIRPLANE_LICENCE.get(folder, "GPL-2.0-or-later"),
                              "FlightGear aircraft model (FGMEMBERS / FlightGear contributors), converted to glTF 2 "
                              "by Ysurac for FlightAirMap", np.array(rot),
                              {"by": "node", "map": dict(sorted(parts.items()))}))
@@ -322,7 +327,7 @@ def write(shapes: list[dict], path: Path) -> None:
     """One shape per block, each label map one entry a line, so that a diff shows one changed part a line."""
     roots = {
         "diegogb": dict(DIEGOGB, licence="GPL-3.0-only", files="data/input/Chairs, data/input/Tables"),
-        "flightairmap": dict(FLIGHTAIRMAP, licence="GPL-2.0-or-later (FlightGear models; pc21 GPL-3.0)",
+        "flightairmap": dict(FLIGHTAIRMAP, licence="GPL-2.0-or-later (FlightGear models; atr72 GPL-3.0)",
                              files="*/glTF2/*.glb"),
         "quaternius": dict(QUATERNIUS, licence="CC0-1.0 (Quaternius)", files="public/glb/animals_pack/*.glb"),
         "pyvista": dict(PYVISTA, licence="MIT", files="data_samples/real/pyvista/ in this repository"),
