@@ -169,7 +169,7 @@ def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():
     # k-means finds the two boxes, whose principal-axis boxes are close to the true ones
     assert r["normal_consistency"] > perfect["normal_consistency"] - 0.05
     assert r["chamfer"][0]["value"] < 2 * perfect["chamfer"][0]["value"]
-    assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid"}
+    assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid", "boxes_per_shape"}
     assert r["reassigned"] is None  # k-means boxes have no allocation
     # the perfect segmentation neither cuts nor merges; k-means finds the same two boxes
     for scores in (perfect, r):
