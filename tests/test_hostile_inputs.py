@@ -856,6 +856,14 @@ def test_coordinates_the_result_files_cannot_hold_are_refused_at_the_entry_prope
             cuboidlib.abstract(given_shape(), model, up="y")
 
 
+@pytest.mark.parametrize("exponent", [39, 200, 300])
+def test_the_fit_of_float64_points_far_beyond_float32_works_in_their_units(chair, exponent):
+    points = torch.as_tensor(chair.points, dtype=torch.float64) * 10.0**exponent
+    r = fit_cuboids(points, torch.as_tensor(chair.normals), FitConfig(steps=2, num_cuboids=3))
+    half = r.cuboids.half_sizes[r.cuboids.exists]
+    assert torch.isfinite(r.cuboids.centers).all() and 10.0**(exponent - 3) < float(half.amax()) < 10.0**exponent
+
+
 def test_a_shape_at_1e30_is_abstracted_in_its_own_units():
     shape = make_shape("chair", 0, n_points=512)
     result = cuboidlib.abstract(shape.points.astype(np.float64) * 1e30, "chair", up="y")
