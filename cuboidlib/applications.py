@@ -256,7 +256,7 @@ def check_latent_statistics(statistics, latent_dim: int | None = None, where: st
                          "'whitening' (D, D) as cuboidlib.applications.latent_statistics writes them "
                          "(cuboidlib.release.add_latent_statistics adds them again to a checkpoint)")
     mean, whitening = statistics["mean"], statistics["whitening"]
-    if not isinstance(mean, torch.Tensor) or not isinstance(whitening, torch.Tensor) or mean.is_meta or whitening.is_meta:
+    if not all(isinstance(t, torch.Tensor) and not t.is_meta for t in (mean, whitening)):
         raise ValueError(f"{where}: 'mean' and 'whitening' must be tensors with values")
     d = latent_dim if latent_dim is not None else (mean.shape[0] if mean.dim() == 1 else -1)
     if mean.shape != (d,) or whitening.shape != (d, d):

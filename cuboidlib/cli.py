@@ -319,7 +319,7 @@ def _add_evaluate_command(sub) -> None:
         "evaluate",
         help="score a checkpoint on its test split: Chamfer distance, normal consistency, mIoU, N_AC",
         description="Run a checkpoint's network on a split of the data it was trained with (by default the "
-        "test split, which training never uses) and print Chamfer distance (convention stated under the "
+        "test split, which training never uses), or on every shape of another data folder (--data-dir), and print Chamfer distance (convention stated under the "
         "table), normal consistency, mIoU by the paper's label transfer (labels from a seeded 20 %% of the "
         "split, scored on the other 80 %%) and the average number of existing cuboids N_AC. --baseline adds "
         "the k-means + oriented-box baseline scored the same way.",
@@ -363,7 +363,8 @@ def _add_evaluate_command(sub) -> None:
 def _cmd_evaluate(args) -> int:
     from ._checks import MAX_CUBOIDS, MAX_SEED, MAX_SHAPE_POINTS, MAX_SHAPES  # imports torch: start-up time
     from .dataset import load_shapes, split_indices  # imports torch: start-up time
-    from .evaluation import evaluate_baseline, evaluate_model, format_table, predict_cuboids  # imports torch: start-up time
+    from .evaluation import (evaluate_baseline, evaluate_model, format_table,  # imports torch: start-up time
+                             predict_cuboids)
     from .metrics import ChamferConvention  # imports torch: start-up time
     from .release import card_path  # imports torch: start-up time
     from .shapes import PART_NAMES  # imports torch: start-up time
@@ -405,7 +406,8 @@ def _cmd_evaluate(args) -> int:
         results.append(evaluate_model(model, shapes, batch_size=args.batch_size, centers_from_allocation=centroids,
                                       name=f"{name}, merged ({args.merge:g})", merge_growth=args.merge, **options))
     if args.baseline:  # as many boxes as the network's existing cuboids, shape by shape
-        boxes = args.baseline_boxes or predict_cuboids(model, shapes, args.batch_size, centroids)[0].num_existing().tolist()
+        boxes = args.baseline_boxes or predict_cuboids(model, shapes, args.batch_size,
+                                                       centroids)[0].num_existing().tolist()
         results.append(evaluate_baseline(shapes, boxes, **options))
     data = f", data folder {config.data_dir}" if config.data_dir else ""
     scope = (f"every shape ({len(shapes)} shapes" if split == "all" else
@@ -565,7 +567,8 @@ def _add_fit_command(sub) -> None:
 
 
 def _cmd_fit(args) -> int:
-    from ._checks import MAX_CUBOIDS, MAX_FIT_STEPS, MAX_RESTARTS, MAX_SEED, MAX_SHAPE_POINTS  # imports torch: start-up time
+    from ._checks import (MAX_CUBOIDS, MAX_FIT_STEPS, MAX_RESTARTS, MAX_SEED,  # imports torch: start-up time
+                          MAX_SHAPE_POINTS)
 
     check_sizes(("--cuboids", args.cuboids, MAX_CUBOIDS, 1), ("--steps", args.steps, MAX_FIT_STEPS, 0),
                 ("--restarts", args.restarts, MAX_RESTARTS, 1), ("--points", args.points, MAX_SHAPE_POINTS, 1),

@@ -141,8 +141,8 @@ class ModelConfig(ConfigDict):
         # Bounds (cuboidlib._checks), so that a config read from a file cannot ask for an absurd allocation
         for name in counts:
             if getattr(self, name) > MAX_NETWORK_WIDTH:
-                raise ValueError(f"ModelConfig.{name} = {getattr(self, name)} is above the limit of {MAX_NETWORK_WIDTH} "
-                                 "(cuboidlib._checks.MAX_NETWORK_WIDTH)")
+                raise ValueError(f"ModelConfig.{name} = {getattr(self, name)} is above the limit of "
+                                 f"{MAX_NETWORK_WIDTH} (cuboidlib._checks.MAX_NETWORK_WIDTH)")
         for name in ("edge_dims", "cuboid_feature_dims"):
             value = getattr(self, name)
             if len(value) > MAX_NETWORK_LAYERS or max(value) > MAX_NETWORK_WIDTH:

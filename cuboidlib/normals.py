@@ -175,7 +175,8 @@ def estimate_normals(points, k: int = 16, orient: bool = True):
     if p.shape[0] > MAX_POINTS:
         raise ValueError(
             f"points holds {p.shape[0]} points; normal estimation takes time N^2 and accepts at most "
-            f"{MAX_POINTS} (cuboidlib._checks.{MAX_POINTS.name}): subsample first (for files: load_point_cloud(path, n_points=4096)) or provide normals"
+            f"{MAX_POINTS} (cuboidlib._checks.{MAX_POINTS.name}): subsample first (for files: "
+            "load_point_cloud(path, n_points=4096)) or provide normals"
         )
     if float((p.amax(dim=0) - p.amin(dim=0)).max()) == 0.0:
         raise ValueError("points are all identical; no normals can be estimated")

@@ -17,18 +17,21 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cuboidlib import io
-from cuboidlib.applications import abstract_shapes, load_trained_model, resolve_checkpoint
+import cuboidlib
+from cuboidlib import _checks, io
+from cuboidlib.applications import (abstract_shapes, generate_shapes, interpolate_codes, latent_distance,
+                                    load_trained_model, resolve_checkpoint)
 from cuboidlib.baseline import fit_cluster_boxes
 from cuboidlib.checkpoint import load_checkpoint, load_model
 from cuboidlib.cli import main
 from cuboidlib.distance import chamfer_distance
 from cuboidlib.export import write_segmented_point_cloud
-from cuboidlib.fitting import FitConfig, fit_cuboids
+from cuboidlib.fitting import FitConfig, fit_cuboids, tighten_cuboids
 from cuboidlib.metrics import mean_iou, normal_consistency, part_ious
 from cuboidlib.normalization import denormalize, normalize
 from cuboidlib.normals import MAX_POINTS, estimate_normals
 from cuboidlib.shapes import ShapeCollection, make_collection, make_shape
+from cuboidlib.train import TrainConfig
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "data_samples" / "checkpoints"
 
@@ -599,7 +602,6 @@ def test_a_data_folder_never_reads_cuboidlibs_own_results_as_shapes(tmp_path, wi
 def test_every_path_that_samples_or_allocates_checks_one_size_limit_first(tmp_path, capsys):
     from cuboidlib._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES
     from cuboidlib.dataset import DataConfig
-    from cuboidlib.train import TrainConfig
 
     too_many = f"above the limit of {MAX_SHAPE_POINTS:,}"
     start = time.perf_counter()
@@ -711,9 +713,6 @@ def test_a_checkpoint_never_chooses_a_folder_to_read(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ limits: every one named, arrays as files
 
-import cuboidlib  # noqa: E402
-from cuboidlib import _checks  # noqa: E402
-from cuboidlib.applications import generate_shapes, interpolate_codes, latent_distance  # noqa: E402
 
 LIMIT_NAMES = [name for name in dir(_checks) if isinstance(getattr(_checks, name), _checks.Limit)]
 FAST = settings(max_examples=40, deadline=None,
@@ -747,8 +746,7 @@ LIBRARY_SIZES = [
     ("generate_shapes", _checks.MAX_SHAPES, lambda v: generate_shapes(_chair_network(), v)),
     ("interpolate_codes", _checks.MAX_SHAPES,
      lambda v: interpolate_codes(_chair_network(), torch.zeros(64), torch.zeros(64), steps=v)),
-    ("TrainConfig.num_threads", _checks.MAX_THREADS, lambda v: __import__("cuboidlib.train").train.TrainConfig(
-        num_threads=v)),
+    ("TrainConfig.num_threads", _checks.MAX_THREADS, lambda v: TrainConfig(num_threads=v)),
     ("make_shape", _checks.MAX_SHAPE_POINTS, lambda v: make_shape("chair", 0, n_points=v)),
 ]
 
@@ -809,9 +807,9 @@ def test_seeds_beyond_what_the_generators_take_are_refused_by_name_property(tmp_
         "abstract_fit": lambda: cuboidlib.abstract(_cloud_array(), None, seed=seed),
         "abstract_network": lambda: cuboidlib.abstract(_cloud_array(), "chair", seed=seed),
         "FitConfig": lambda: FitConfig(seed=seed),
-        "TrainConfig": lambda: __import__("cuboidlib.train").train.TrainConfig(seed=seed),
-        "tighten": lambda: __import__("cuboidlib.fitting").fitting.tighten_cuboids(
-            torch.rand(1, 20, 3), fit_cluster_boxes(torch.rand(20, 3), torch.rand(20, 3), 2).cuboids, seed=seed),
+        "TrainConfig": lambda: TrainConfig(seed=seed),
+        "tighten": lambda: tighten_cuboids(torch.rand(1, 20, 3), fit_cluster_boxes(torch.rand(20, 3), torch.rand(20, 3),
+                                                                                    2).cuboids, seed=seed),
     }
     out = str(tmp_path / "out")
     argv = {"fit": ["fit", str(SAMPLE_MESH), "--out", out, "--seed"],
