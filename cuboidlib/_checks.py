@@ -20,23 +20,78 @@ __all__ = [
     "check_same_leading",
     "check_int",
     "check_size",
+    "check_seed",
+    "check_coordinates",
+    "Limit",
     "MAX_SHAPE_POINTS",
     "MAX_SHAPES",
     "MAX_COLLECTION_POINTS",
+    "MAX_CUBOIDS",
+    "MAX_RESTARTS",
+    "MAX_FIT_STEPS",
+    "MAX_THREADS",
+    "MAX_SEED",
+    "MAX_COORDINATE",
+    "MAX_NETWORK_WIDTH",
+    "MAX_NETWORK_LAYERS",
+    "MAX_NETWORK_PARAMETERS",
+    "MAX_NEIGHBOURS",
 ]
 
-# The size limits: every path that samples, generates or allocates points or shapes checks its size with
-# check_size before any work, so that a size too large is a clear error, not an allocator failure or an unbounded
-# run. They admit the paper's scale (4,096 points per shape, 2,000 shapes) with a wide margin.
+# The limits: every path that samples, generates, allocates or repeats something checks its size against one of
+# these with check_size before any work (for arrays as for files), so that a size too large is a clear error that
+# names its limit, not an allocator failure or an unbounded run. They admit the paper's scale (4,096 points per
+# shape, 2,000 shapes, 16 cuboids) with a wide margin. The README's "Limits" section lists them.
 
-#: Points per shape: sampled on a mesh, kept of a point cloud, or a config's n_points; the same bound as normal
-#: estimation (cuboidlib.normals.MAX_POINTS). Sampling an open mesh (normals oriented by visibility) costs most.
-MAX_SHAPE_POINTS = 20_000
-#: Shapes in one collection: a config's n_shapes, ``cuboidlib generate --count``.
-MAX_SHAPES = 20_000
+
+class Limit(int):
+    """A limit: an int that knows its name and what it counts, so that every message names the limit it is about.
+
+    Example: ``MAX_CUBOIDS.name == "MAX_CUBOIDS"``, ``MAX_CUBOIDS.unit == "cuboids"``, ``MAX_CUBOIDS + 0 == 64``.
+    """
+
+    def __new__(cls, value: int, name: str, unit: str) -> "Limit":
+        limit = super().__new__(cls, value)
+        limit.name, limit.unit = name, unit
+        return limit
+
+    def __reduce__(self):  # copies and pickles are plain ints
+        return int, (int(self),)
+
+
+#: Points per shape: sampled on a mesh, kept of a point cloud or an array (``abstract(..., n_points)``), or a
+#: config's n_points; also the bound of normal estimation (cuboidlib.normals.MAX_POINTS, O(N^2)). Sampling an
+#: open mesh (normals oriented by visibility) costs most.
+MAX_SHAPE_POINTS = Limit(20_000, "MAX_SHAPE_POINTS", "points")
+#: Shapes in one collection or one command: a config's n_shapes, ``cuboidlib generate --count``,
+#: ``cuboidlib interpolate --steps``, ``cuboidlib samples --per-category``.
+MAX_SHAPES = Limit(20_000, "MAX_SHAPES", "shapes")
 #: Points in one collection in all (n_shapes x n_points): 2^24, 4,096 shapes of 4,096 points, about 0.5 GB of
 #: points, normals and labels.
-MAX_COLLECTION_POINTS = 2**24
+MAX_COLLECTION_POINTS = Limit(2**24, "MAX_COLLECTION_POINTS", "points")
+#: Cuboid slots of the per-shape fit (``FitConfig.num_cuboids``, ``cuboidlib fit --cuboids``) and k-means boxes per
+#: shape: the fit's allocation is restarts x points x cuboids numbers, several times over (Adam, gradients).
+MAX_CUBOIDS = Limit(64, "MAX_CUBOIDS", "cuboids")
+#: Restarts of the per-shape fit (``FitConfig.restarts``, ``cuboidlib fit --restarts``), fitted in one batch: at
+#: MAX_SHAPE_POINTS points and MAX_CUBOIDS cuboids about 20 million allocation weights, under 1 GB with Adam.
+MAX_RESTARTS = Limit(16, "MAX_RESTARTS", "restarts")
+#: Adam steps of one fit or refinement (``FitConfig.steps``, ``--steps``, ``--refine``): time grows with them,
+#: about 5 ms a step at 2,048 points and 16 cuboids, so the limit is minutes, not an unbounded run.
+MAX_FIT_STEPS = Limit(100_000, "MAX_FIT_STEPS", "steps")
+#: Torch threads of one training process (``TrainConfig.num_threads``, ``cuboidlib train --threads``); more threads
+#: than cores only slow it down.
+MAX_THREADS = Limit(256, "MAX_THREADS", "threads")
+#: The largest seed: what torch's generators take as a signed 64-bit integer (numpy's take any).
+MAX_SEED = Limit(2**63 - 1, "MAX_SEED", "")
+#: The largest coordinate magnitude of a shape to abstract: result files (GLB, PLY) hold float32 coordinates, at
+#: most 3.4e38, and cuboids may reach a little beyond the points.
+MAX_COORDINATE = 1e38
+#: The network's widths, layers and weights (:class:`cuboidlib.model.ModelConfig`), so that a config read from a
+#: file cannot ask for an absurd allocation; and its neighbours k.
+MAX_NETWORK_WIDTH = Limit(8192, "MAX_NETWORK_WIDTH", "channels")
+MAX_NETWORK_LAYERS = Limit(8, "MAX_NETWORK_LAYERS", "layers")
+MAX_NETWORK_PARAMETERS = Limit(50_000_000, "MAX_NETWORK_PARAMETERS", "parameters")
+MAX_NEIGHBOURS = Limit(1024, "MAX_NEIGHBOURS", "neighbours")
 
 
 def as_float_tensor(x, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
@@ -52,9 +107,12 @@ def as_float_tensor(x, name: str, dtype: torch.dtype | None = None, device=None)
         The tensor (``x`` itself when it is a float tensor and nothing is converted).
 
     Raises:
-        TypeError: ``x`` is not array-like.
+        TypeError: ``x`` is not array-like, or a tensor without values (on the "meta" device).
     """
     if isinstance(x, torch.Tensor):
+        if x.is_meta:
+            raise TypeError(f"{name} is a tensor on the 'meta' device, which holds a shape but no values; give a "
+                            "tensor with values (e.g. on the cpu)")
         t = x
     else:
         try:
@@ -168,33 +226,68 @@ def check_int(value, name: str, minimum: int) -> None:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
-_LIMIT_NAMES = {MAX_SHAPE_POINTS: "MAX_SHAPE_POINTS", MAX_SHAPES: "MAX_SHAPES",
-                MAX_COLLECTION_POINTS: "MAX_COLLECTION_POINTS"}
-
-
-def check_size(value, name: str, limit: int, unit: str = "points") -> int:
-    """A size to sample, generate or allocate: a whole number from 1 to ``limit``, checked before any work.
+def check_size(value, name: str, limit: int, unit: str | None = None, minimum: int = 1) -> int:
+    """A size to sample, generate, allocate or repeat: a whole number from ``minimum`` to ``limit``, checked before
+    any work.
 
     Args:
         value: the size (an int, or a whole-valued integer type such as numpy's).
         name: the argument's name, for the message.
-        limit: the largest accepted, one of the limits above.
-        unit: what is counted, for the message.
+        limit: the largest accepted, one of the :class:`Limit` constants above (a plain int is named by value).
+        unit: what is counted, for the message (default: the limit's unit).
+        minimum: the smallest accepted, 1 or 0.
 
     Returns:
         ``value`` as an int.
 
     Raises:
-        ValueError: not a whole number, below 1 or above ``limit`` (naming the limit).
+        ValueError: not a whole number, below ``minimum`` or above ``limit`` (naming the limit).
     """
+    unit = unit or getattr(limit, "unit", "") or "items"
     if isinstance(value, bool) or not hasattr(value, "__index__"):
-        raise ValueError(f"{name} must be a whole number of {unit} from 1 to {limit:,}, got {value!r}")
+        raise ValueError(f"{name} must be a whole number of {unit} from {minimum} to {limit:,}, got {value!r}")
     value = int(value.__index__())
-    if value < 1:
-        raise ValueError(f"{name} must be a positive number of {unit}, got {value}")
+    if value < minimum:
+        rule = f"a positive number of {unit}" if minimum == 1 else f"at least {minimum} {unit}"
+        raise ValueError(f"{name} must be {rule}, got {value}")
     if value > limit:
-        where = _LIMIT_NAMES.get(limit)
-        raise ValueError(f"{name} is {value:,} {unit}, above the limit of {limit:,}"
-                         + (f" (cuboidlib._checks.{where})" if where else "")
-                         + "; the work and memory grow with it. Use a smaller size")
+        where = f" (cuboidlib._checks.{limit.name})" if isinstance(limit, Limit) else ""
+        raise ValueError(f"{name} is {value:,} {unit}, above the limit of {limit:,}{where}; the work and memory grow "
+                         "with it. Use a smaller size")
     return value
+
+
+def check_seed(value, name: str = "seed") -> int:
+    """A seed: a whole number from 0 to :data:`MAX_SEED` (what torch's generators take).
+
+    Args:
+        value: the seed (an int or a numpy integer).
+        name: the argument's name, for the message.
+
+    Returns:
+        ``value`` as an int.
+
+    Raises:
+        ValueError: naming the argument, the range and the value.
+    """
+    if isinstance(value, bool) or not hasattr(value, "__index__") or not 0 <= int(value.__index__()) <= MAX_SEED:
+        raise ValueError(f"{name} must be a whole number from 0 to {MAX_SEED:,} (cuboidlib._checks.MAX_SEED, the "
+                         f"largest seed torch's generators take), got {value!r}")
+    return int(value.__index__())
+
+
+def check_coordinates(largest: float, name: str) -> None:
+    """Refuse coordinates beyond :data:`MAX_COORDINATE`, which the result files (float32) cannot hold.
+
+    Args:
+        largest: the largest absolute coordinate of the shape.
+        name: the shape's name, for the message.
+
+    Raises:
+        ValueError: naming the shape, its largest coordinate and the limit.
+    """
+    if not largest <= MAX_COORDINATE:
+        raise ValueError(f"{name}: coordinates reach {largest:.3g}, above the limit of {MAX_COORDINATE:.0e} "
+                         "(cuboidlib._checks.MAX_COORDINATE): the cuboids could not be written in the result files "
+                         "(float32 coordinates, at most 3.4e38). Give the shape in larger units (divide its "
+                         "coordinates by a power of ten)")

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .applications import abstract_shapes, latent_distance, load_trained_model
+from ._checks import MAX_FIT_STEPS, MAX_SHAPE_POINTS, as_float_tensor, check_coordinates, check_seed, check_size
+from .applications import abstract_shapes, check_latent_statistics, latent_distance, load_trained_model
 from .baseline import fit_cluster_boxes
 from .config import resolve_device, torch_threads
 from .fitting import FitConfig, fit_cuboids, tighten_cuboids
@@ -140,17 +141,38 @@ def candidate_frames(front: str | None = None) -> list[tuple[str, str]]:
 
 
 def _as_point_cloud(shape, n_points: int, seed: int) -> PointCloud:
-    """A normalised PointCloud with unit normals from a file path, a PointCloud or an (N, 3) / (N, 6) array."""
+    """A normalised PointCloud with unit normals from a file path, a PointCloud or an (N, 3) / (N, 6) array.
+
+    Its ``center`` and ``scale`` map it back to the input's own coordinates: a file's, an array's, or those a
+    PointCloud records (:func:`cuboidlib.io.load_point_cloud` normalises and records its file's frame; the two
+    normalisations compose).
+    """
     if isinstance(shape, (str, os.PathLike)):
-        return load_point_cloud(shape, n_points, seed, fewer_ok=True)
+        pc = load_point_cloud(shape, n_points, seed, fewer_ok=True)
+        _check_frame(pc, str(shape))
+        return pc
     if isinstance(shape, PointCloud):
-        pc = PointCloud(shape.points, shape.normals, shape.labels, source=shape.source)
+        name = shape.source or "shape"
+        given_center = np.asarray(shape.center if shape.center is not None else np.zeros(3), dtype=np.float64)
+        given_scale = float(shape.scale)
+        if given_center.shape != (3,) or not np.isfinite(given_center).all() or not (
+                np.isfinite(given_scale) and given_scale > 0):
+            raise ValueError(f"{name}: a PointCloud's center must be 3 finite numbers and its scale a finite positive "
+                             f"number (original = points * scale + center), got {shape.center!r} and {shape.scale!r}")
+        pc = PointCloud(np.asarray(shape.points, dtype=np.float64), shape.normals, shape.labels, source=shape.source)
     else:
-        array = shape.detach().cpu().numpy() if isinstance(shape, torch.Tensor) else np.asarray(shape)
+        if isinstance(shape, torch.Tensor):
+            array = as_float_tensor(shape, "shape").detach().cpu().double().numpy()  # no data (meta): refused
+        else:
+            try:
+                array = np.asarray(shape, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise TypeError(f"shape must be a file path, a PointCloud or an (N, 3) / (N, 6) array of numbers, "
+                                f"got {type(shape).__name__}") from exc
         if array.ndim != 2 or array.shape[1] not in (3, 6):
             raise ValueError(f"shape must be a file path, a PointCloud or an (N, 3) / (N, 6) array of points "
                              f"[and normals], got an array of shape {array.shape}")
-        array = array.astype(np.float64)
+        name, given_center, given_scale = "shape", np.zeros(3), 1.0
         pc = PointCloud(array[:, :3], array[:, 3:] if array.shape[1] == 6 else None)
     validate_point_cloud(np.asarray(pc.points), pc.normals, pc.labels, pc.source or "shape")
     if n_points < len(pc):
@@ -159,13 +181,22 @@ def _as_point_cloud(shape, n_points: int, seed: int) -> PointCloud:
         pc.normals = None if pc.normals is None else pc.normals[keep]
         pc.labels = None if pc.labels is None else pc.labels[keep]
     points, center, scale = normalize(np.asarray(pc.points, dtype=np.float64))
-    pc.points, pc.center, pc.scale = points.astype(np.float32), center, float(scale)
+    pc.points = points.astype(np.float32)
+    pc.center, pc.scale = given_center + given_scale * center, given_scale * float(scale)  # the input's own frame
+    _check_frame(pc, name)
     if pc.normals is None:
         pc.normals = estimate_normals(pc.points, k=min(16, len(pc))).astype(np.float32)
     else:
         n = np.asarray(pc.normals, dtype=np.float64)
         pc.normals = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
     return pc
+
+
+def _check_frame(pc: PointCloud, name: str) -> None:
+    """Refuse a shape whose coordinates the result files cannot hold (:data:`cuboidlib._checks.MAX_COORDINATE`)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        largest = float(np.abs(np.asarray(pc.points, dtype=np.float64) * pc.scale + pc.center).max())
+    check_coordinates(largest if np.isfinite(largest) else float("inf"), name)
 
 
 def _turned(values: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -386,11 +417,19 @@ def up_axis_scores(shape, model, *, n_points: int | None = None, seed: int = 0, 
         {"x": ..., "y": ..., "z": ..., "-x": ..., "-y": ..., "-z": ...}: the measurement behind the
         orientation warning.
     """
+    _check_sampling(n_points, seed)
     net, state, _ = _load_network(model, device)
     pc = _as_point_cloud(shape, _network_points(n_points, state), seed)
     centroids = _centroids(centers, state)
     scores, _, _ = _frame_scores(pc, net, state, [(u, _default_front(u)) for u in AXES], threshold, centroids, seed)
     return {f[0]: c for f, c in scores.items()}
+
+
+def _check_sampling(n_points, seed) -> None:
+    """The points to keep and the seed, checked before any work, for arrays and PointClouds as for files."""
+    check_seed(seed)
+    if n_points is not None:
+        check_size(n_points, "n_points", MAX_SHAPE_POINTS)
 
 
 def _network_points(n_points: int | None, state: dict) -> int:
@@ -488,6 +527,8 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         raise ValueError(f"centers must be 'auto', 'predicted' or 'allocation', got {centers!r}")
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
         raise ValueError(f"refine must be a non-negative number of steps, got {refine!r}")
+    check_size(refine, "refine", MAX_FIT_STEPS, minimum=0)
+    _check_sampling(n_points, seed)
     if not isinstance(check, bool) or not isinstance(fallback, bool):
         raise ValueError(f"check and fallback must be True or False, got {check!r} and {fallback!r}")
     if merge is not None and (isinstance(merge, bool) or not isinstance(merge, (int, float)) or not merge >= 0):
@@ -510,6 +551,8 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         return _by_fitting(pc, "y" if up is None else up, front, fit_config, part_names, source, seed, progress)
 
     net, state, path = _load_network(model, device)
+    if "latent_statistics" in state:
+        check_latent_statistics(state["latent_statistics"], net.config.latent_dim, f"{path}: latent_statistics")
     pc = _as_point_cloud(shape, _network_points(n_points, state), seed)
     _check_part_names(pc, part_names, source)
     if len(pc) <= net.config.k:

@@ -22,7 +22,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 import torch
 
-from ._checks import as_float_tensor, check_finite, check_shape
+from ._checks import MAX_SHAPES, as_float_tensor, check_finite, check_shape, check_size
 from .checkpoint import load_model
 from .geometry import Cuboids
 from .losses import allocation_weighted_centers
@@ -36,6 +36,7 @@ __all__ = [
     "encode_shapes",
     "latent_statistics",
     "latent_distance",
+    "check_latent_statistics",
     "abstract_shapes",
     "cuboid_step_changes",
     "Interpolation",
@@ -141,6 +142,7 @@ def generate_shapes(
     """
     if isinstance(n_shapes, bool) or not isinstance(n_shapes, int) or n_shapes < 1:
         raise ValueError(f"n_shapes must be a positive integer, got {n_shapes!r}")
+    check_size(n_shapes, "n_shapes", MAX_SHAPES)
     z = torch.randn(n_shapes, model.config.latent_dim, generator=generator)
     return decode_latents(model, z, threshold)
 
@@ -226,11 +228,42 @@ def latent_distance(mu, statistics: dict[str, torch.Tensor]) -> torch.Tensor:
     Returns:
         (B,) float64 |W (mu - mean)|.
     """
+    check_latent_statistics(statistics)
     mean, whitening = statistics["mean"], statistics["whitening"]
     mu = as_float_tensor(mu, "mu", dtype=torch.float64)
     mu = mu.unsqueeze(0) if mu.dim() == 1 else mu
     check_shape(mu, ("B", mean.shape[0]), "mu")
     return ((mu.cpu() - mean) @ whitening.T).norm(dim=-1)
+
+
+def check_latent_statistics(statistics, latent_dim: int | None = None, where: str = "statistics") -> None:
+    """Refuse latent statistics that :func:`latent_distance` cannot use (a damaged or hand-edited checkpoint).
+
+    Args:
+        statistics: what :func:`latent_statistics` returns: "mean" (D,) and "whitening" (D, D), finite.
+        latent_dim: D, the network's latent size, or None to take the mean's.
+        where: names them in the message (e.g. "chair.pt: latent_statistics").
+
+    Raises:
+        ValueError: naming the missing or malformed entry and what was expected.
+    """
+    if not isinstance(statistics, dict):
+        raise ValueError(f"{where} must be a dict with 'mean' and 'whitening' (cuboidlib.applications."
+                         f"latent_statistics), got {type(statistics).__name__}")
+    missing = [key for key in ("mean", "whitening") if key not in statistics]
+    if missing:
+        raise ValueError(f"{where} lack {missing} (they hold {sorted(statistics)}); expected 'mean' (D,) and "
+                         "'whitening' (D, D) as cuboidlib.applications.latent_statistics writes them "
+                         "(cuboidlib.release.add_latent_statistics adds them again to a checkpoint)")
+    mean, whitening = statistics["mean"], statistics["whitening"]
+    if not all(isinstance(t, torch.Tensor) and not t.is_meta for t in (mean, whitening)):
+        raise ValueError(f"{where}: 'mean' and 'whitening' must be tensors with values")
+    d = latent_dim if latent_dim is not None else (mean.shape[0] if mean.dim() == 1 else -1)
+    if mean.shape != (d,) or whitening.shape != (d, d):
+        raise ValueError(f"{where}: 'mean' has shape {tuple(mean.shape)} and 'whitening' {tuple(whitening.shape)}; "
+                         f"expected ({d},) and ({d}, {d}) for the latent size {d}")
+    if not (torch.isfinite(mean).all() and torch.isfinite(whitening).all()):
+        raise ValueError(f"{where}: 'mean' or 'whitening' holds NaN or infinite values")
 
 
 def _normals_like(normals, points):
@@ -366,6 +399,7 @@ def interpolate_codes(
     """
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 2:
         raise ValueError(f"steps must be an integer >= 2, got {steps!r}")
+    check_size(steps, "steps", MAX_SHAPES, "shapes")
     codes = []
     for name, z in (("z_a", z_a), ("z_b", z_b)):
         z = as_float_tensor(z, name)

@@ -1,19 +1,20 @@
 """The ``cuboidlib`` command-line tool: every subcommand and option in one place.
 
-One file, because the command line is one parser: its subcommands share option helpers and the error rule below.
+One file for the parser: its subcommands share option helpers and the error rule below. What the handlers share
+(errors, the inputs, the one rule for outputs) is :mod:`cuboidlib.cli_common`; the runs over shapes of ``fit`` and
+``abstract`` are :mod:`cuboidlib.cli_shapes`.
 
 Each subcommand is a ``_add_*_command`` (its options) and a ``_cmd_*`` handler, a thin layer over the
-library. Errors a user can fix are printed as one line with a non-zero exit code (``--traceback``: the full
-traceback). The handlers import the library inside, as marked: it imports torch (seconds), which --help,
---version and usage errors do without.
+library. Every handler checks its sizes, seeds and outputs before any work (:func:`cuboidlib.cli_common.check_sizes`,
+:func:`cuboidlib.cli_common.check_outputs`). Errors a user can fix are printed as one line with a non-zero exit
+code (``--traceback``: the full traceback). The handlers import the library inside, as marked: it imports torch
+(seconds), which --help, --version and usage errors do without.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import glob
-import io
+import contextlib
 import json
 import os
 import shlex
@@ -24,11 +25,11 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .files import MESH_FORMATS, check_outputs_spare_inputs, output_lock, write_text_atomic
-
-
-class UserError(Exception):
-    """An error caused by the user's input: printed as one line, exit code 2."""
+from .cli_common import (BAR_DELAY, SUMMARY_FILE, Recording, UserError, bars, check_input, check_input_folder,
+                         check_out_dir, check_outputs, check_sizes, hold_folder, load_shape, model_points, record,
+                         resolved_model)
+from .cli_shapes import run_shapes
+from .files import MESH_FORMATS, write_text_atomic
 
 
 class _Parser(argparse.ArgumentParser):
@@ -92,14 +93,27 @@ def _add_samples_command(sub) -> None:
     p.add_argument("--points", type=int, default=2048, help="points per point cloud (default: 2048)")
     p.add_argument("--seed", type=int, default=0, help="collection seed (default: 0)")
     p.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
+    p.add_argument("--force", action="store_true",
+                   help="replace sample files that are already there (default: refuse, naming them; the committed "
+                   "data_samples/ are the course's inputs)")
     p.set_defaults(func=_cmd_samples)
 
 
 def _cmd_samples(args) -> int:
-    from .io import write_data_samples  # imports torch: start-up time
+    from ._checks import MAX_SEED, MAX_SHAPE_POINTS, MAX_SHAPES  # imports torch: start-up time
+    from .io import data_sample_files, write_data_samples  # imports torch: start-up time
 
     if args.per_category < 1 or args.points < 1 or args.seed < 0:
         raise UserError("--per-category and --points must be positive and --seed non-negative")
+    check_sizes(("--per-category", args.per_category, MAX_SHAPES, 1), ("--points", args.points, MAX_SHAPE_POINTS, 1),
+                ("--seed", args.seed, MAX_SEED, 0))
+    files = data_sample_files(args.out, args.per_category, figure=not args.no_figure)
+    check_outputs([("--out", args.out), *(("--out", f) for f in files)])
+    present = [str(f) for f in files if os.path.lexists(f)]
+    if present and not args.force:
+        raise UserError(f"--out {args.out}: already holds {len(present)} of the sample files ({', '.join(present[:3])}"
+                        f"{', ...' if len(present) > 3 else ''}); choose another folder, or replace them (--force)")
+    hold_folder(args, args.out)
     written = write_data_samples(args.out, args.per_category, args.points, args.seed, figure=not args.no_figure)
     print(f"wrote {len(written)} files to {args.out}")
     return 0
@@ -233,11 +247,9 @@ def _finetune_config_from_args(args, first):
     return TrainConfig.from_dict({**file, **inherited, **given})
 
 
-def _check_writable_file(path: str, suffix: str, option: str) -> None:
+def _check_writable_file(path: str, option: str) -> None:
     """Refuse, before any work, an output file that could not be written at the end."""
     file = Path(path)
-    if file.suffix != suffix:
-        raise UserError(f"{option} {path}: the file must end in {suffix}")
     try:  # the folder is made now, and a file written and removed in it
         file.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=file.parent, prefix=".write-test-"):
@@ -246,16 +258,36 @@ def _check_writable_file(path: str, suffix: str, option: str) -> None:
         raise UserError(f"{option} {path}: cannot write there ({exc.strerror or exc})") from exc
 
 
+def _check_train_outputs(args, config, finetune) -> None:
+    """The one rule for train's outputs: the run folder's files (and the second stage's), --release and its card
+    are none of the inputs (--config, --finetune, the data folder, init_from) and no two are one file."""
+    from .release import card_path  # imports torch: start-up time
+    from .train import FINETUNE_DIR, RUN_FILES  # imports torch: start-up time
+
+    if args.release and Path(args.release).suffix != ".pt":
+        raise UserError(f"--release {args.release}: the file must end in .pt")
+    out = Path(args.out)
+    runs = [out, *([out / FINETUNE_DIR] if finetune is not None else [])]
+    writes = [("--out", out), *((f"the run's {name} in --out", run / name) for run in runs for name in RUN_FILES)]
+    if args.release:
+        writes += [("--release", Path(args.release)), ("the card of --release", card_path(args.release))]
+    check_outputs(writes, [args.config, args.finetune, config.data_dir, config.init_from])
+
+
 def _cmd_train(args) -> int:
+    from ._checks import MAX_THREADS  # imports torch: start-up time
     from .train import Distributed, Trainer, TrainingDiverged, train_then_finetune  # imports torch: start-up time
 
+    check_sizes(("--threads", args.num_threads if isinstance(args.num_threads, int) else None, MAX_THREADS, 1))
     config = _train_config_from_args(args)
     finetune = _finetune_config_from_args(args, config) if args.finetune else None
+    _check_train_outputs(args, config, finetune)
     if args.release:
-        _check_writable_file(args.release, ".pt", "--release")
+        _check_writable_file(args.release, "--release")
     if args.print_config:
         print(json.dumps(config.to_dict(), indent=2))
         return 0
+    hold_folder(args, args.out)
     processes = Distributed()  # this process's rank and the number of processes (torchrun's variables)
     try:
         if finetune is None:
@@ -287,26 +319,32 @@ def _add_evaluate_command(sub) -> None:
         "evaluate",
         help="score a checkpoint on its test split: Chamfer distance, normal consistency, mIoU, N_AC",
         description="Run a checkpoint's network on a split of the data it was trained with (by default the "
-        "test split, which training never uses) and print Chamfer distance (convention stated under the "
+        "test split, which training never uses), or on every shape of another data folder (--data-dir), and print Chamfer distance (convention stated under the "
         "table), normal consistency, mIoU by the paper's label transfer (labels from a seeded 20 %% of the "
         "split, scored on the other 80 %%) and the average number of existing cuboids N_AC. --baseline adds "
         "the k-means + oriented-box baseline scored the same way.",
     )
     p.add_argument("checkpoint", help="a checkpoint file, a 'cuboidlib train' run folder (its best.pt) or the "
                    "name of a committed checkpoint (e.g. chair)")
-    p.add_argument("--split", choices=("train", "val", "test", "all"), default="test",
-                   help="split to score (default: test; all: every shape of the data)")
+    p.add_argument("--split", choices=("train", "val", "test", "all"),
+                   help="split to score (default: test of the checkpoint's own data, every shape of a --data-dir; "
+                   "all: every shape of the data)")
     p.add_argument("--data-dir", metavar="DIR",
                    help="score on this data instead of the checkpoint's own: a ShapeNet-part root, the authors' data "
-                   "layout or a folder of mesh / point cloud files (labels score the mIoU when the files have them)")
+                   "layout or a folder of mesh / point cloud files (labels score the mIoU when the files have them); "
+                   "every shape of it unless --split is given")
     p.add_argument("--category", help="the category to read from --data-dir (default: the checkpoint's)")
+    p.add_argument("--part-names", type=_part_names, metavar="NAMES",
+                   help="comma-separated names of the data's part labels (default: the category's, "
+                   "cuboidlib.shapes.PART_NAMES, for files whose labels have no names)")
     p.add_argument("--baseline", action="store_true", help="also score the k-means + oriented-box baseline")
     p.add_argument("--merge", type=_growth, nargs="?", const=0.25, metavar="GROWTH",
                    help="also score the network's cuboids after merging the pieces of one part: two segments merge "
                    "when the box around both is at most GROWTH larger than their two boxes (default 0.25; "
                    "cuboidlib.merging)")
     p.add_argument("--baseline-boxes", type=int,
-                   help="boxes per shape for the baseline (default: the network's N_AC, rounded)")
+                   help="boxes per shape for the baseline, the same for every shape (default: as many as the "
+                   "network's existing cuboids of that shape)")
     p.add_argument("--json", metavar="OUT", help="also write the results as JSON to OUT")
     p.add_argument("--chamfer-norm", action="append", choices=("squared_l2", "l2", "l1"),
                    help="Chamfer distance norm, repeat for several columns (default: squared_l2)")
@@ -323,21 +361,39 @@ def _add_evaluate_command(sub) -> None:
 
 
 def _cmd_evaluate(args) -> int:
-    from .dataset import load_shapes, load_splits  # imports torch: start-up time
-    from .evaluation import evaluate_baseline, evaluate_model, format_table  # imports torch: start-up time
+    from ._checks import MAX_CUBOIDS, MAX_SEED, MAX_SHAPE_POINTS, MAX_SHAPES  # imports torch: start-up time
+    from .dataset import load_shapes, split_indices  # imports torch: start-up time
+    from .evaluation import (evaluate_baseline, evaluate_model, format_table,  # imports torch: start-up time
+                             predict_cuboids)
     from .metrics import ChamferConvention  # imports torch: start-up time
+    from .release import card_path  # imports torch: start-up time
+    from .shapes import PART_NAMES  # imports torch: start-up time
     from .train import TrainConfig  # imports torch: start-up time
 
+    check_sizes(("--samples", args.samples, MAX_SHAPE_POINTS, 1), ("--batch-size", args.batch_size, MAX_SHAPES, 1),
+                ("--baseline-boxes", args.baseline_boxes, MAX_CUBOIDS, 1), ("--seed", args.seed, MAX_SEED, 0))
+    checkpoint = resolved_model(args.checkpoint)
+    if args.data_dir is not None:
+        check_input_folder(args.data_dir)
+    if args.json:
+        check_outputs([("--json", Path(args.json))], [checkpoint, card_path(checkpoint), args.data_dir])
     model, state, _ = _load_model(args.checkpoint, args.device)
     config = TrainConfig.from_dict(state["config"])
     if args.data_dir is not None:
-        _check_input_folder(args.data_dir)
         config = config.replace(data_dir=args.data_dir, category=args.category or config.category)
     elif config.data_dir is not None:  # a folder written in a file is never read unasked
         raise UserError(f"{args.checkpoint}: was trained on the data folder {config.data_dir}; to score it there, "
                         f"name the folder: --data-dir {shlex.quote(config.data_dir)} (a checkpoint never chooses "
                         "which folder is read)")
-    shapes = load_shapes(config) if args.split == "all" else load_splits(config)[args.split]
+    split = args.split or ("all" if args.data_dir is not None else "test")
+    every = load_shapes(config)
+    shapes = every if split == "all" else every.subset(
+        split_indices(len(every), config.split_fractions, config.split_seed)[split])
+    if shapes.labels is not None and (args.part_names or shapes.part_names is None):
+        names = args.part_names or PART_NAMES.get(config.category, ())
+        where = "--part-names" if args.part_names else (f"the {config.category} part names (cuboidlib.shapes."
+                                                        "PART_NAMES; --part-names names the data's labels)")
+        shapes = shapes.with_part_names(names, where)
     conventions = [ChamferConvention(norm, args.chamfer_directions, args.chamfer_scale, args.samples)
                    for norm in (args.chamfer_norm or ["squared_l2"])]
     options = dict(label_transfer_fraction=args.label_fraction, conventions=conventions, seed=args.seed)
@@ -349,27 +405,23 @@ def _cmd_evaluate(args) -> int:
     if args.merge is not None:
         results.append(evaluate_model(model, shapes, batch_size=args.batch_size, centers_from_allocation=centroids,
                                       name=f"{name}, merged ({args.merge:g})", merge_growth=args.merge, **options))
-    if args.baseline:
-        boxes = args.baseline_boxes or max(1, round(results[0]["n_ac"]))
+    if args.baseline:  # as many boxes as the network's existing cuboids, shape by shape
+        boxes = args.baseline_boxes or predict_cuboids(model, shapes, args.batch_size,
+                                                       centroids)[0].num_existing().tolist()
         results.append(evaluate_baseline(shapes, boxes, **options))
     data = f", data folder {config.data_dir}" if config.data_dir else ""
-    title = (f"{args.checkpoint}: {config.category}{data}, {args.split} split ({len(shapes)} shapes, "
-             f"{config.n_points} points each)")
-    print(format_table(results, title))
+    scope = (f"every shape ({len(shapes)} shapes" if split == "all" else
+             f"{split} split ({len(shapes)} of {len(every)} shapes{'; --split all scores every one' if data else ''}")
+    print(format_table(results, f"{args.checkpoint}: {config.category}{data}, {scope}, {config.n_points} points each)"))
     if args.json:
-        out = {"checkpoint": str(args.checkpoint), "split": args.split, "config": config.to_dict(), "results": results}
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
+        out = {"checkpoint": str(args.checkpoint), "split": split, "config": config.to_dict(), "results": results}
+        write_text_atomic(args.json, json.dumps(out, indent=2) + "\n")
     return 0
 
 
 # ----------------------------------------------------------------------------------------------
 # Abstraction of one shape (fit, abstract), applications (generate, interpolate) and the viewer
 # ----------------------------------------------------------------------------------------------
-
-
-# Progress bars appear only when a step takes longer than this many seconds.
-_BAR_DELAY = 0.5
 
 
 class _FitDefault:
@@ -475,98 +527,6 @@ def _add_model_options(p) -> None:
     p.add_argument("--device", default="cpu", help="cpu (default), cuda[:i] or auto")
 
 
-def _check_out_dir(args, inputs=(), names=()) -> None:
-    """Refuse an output folder that holds an earlier run's results, unless --overwrite (then remove them).
-
-    Before anything is removed, the files this run would write (``names`` in --out, the manifest and the summary)
-    and those --overwrite would remove are checked against ``inputs``: none may be an input or lie inside one.
-    """
-    from .export import MANIFEST, prepare_output_folder, read_manifest  # imports torch: start-up time
-
-    out = Path(args.out)
-    outputs = [out / n for n in (*names, MANIFEST, SUMMARY_FILE)]
-    manifest = read_manifest(out) if args.overwrite and out.is_dir() else None
-    outputs += [out / n for n in (manifest or {}).get("files", [])]
-    try:
-        check_outputs_spare_inputs([out, *outputs], [i for i in inputs if Path(i).exists()], "--out")
-        prepare_output_folder(args.out, args.overwrite)
-    except ValueError as exc:
-        raise UserError(f"--out {exc}" if not str(exc).startswith("--out") else str(exc)) from exc
-
-
-def _record(args, files, complete: bool = True) -> None:
-    """Write the output folder's manifest: the files this run wrote, and whether it completed."""
-    from .export import write_manifest  # imports torch: start-up time
-
-    argv = sys.argv[1:] if args.argv is None else args.argv
-    write_manifest(args.out, files, "cuboidlib " + shlex.join(argv), complete)
-
-
-class _Recording:
-    """While a command writes many files: the manifest every few seconds (not after every file, which grows as
-    N^2) and when the run is interrupted, with what it wrote so far. ``files`` is the list the command extends."""
-
-    def __init__(self, args, files: list):
-        self.args, self.files, self.last = args, files, time.perf_counter()
-
-    def tick(self) -> None:
-        if time.perf_counter() - self.last > 2.0:
-            _record(self.args, self.files, complete=False)
-            self.last = time.perf_counter()
-
-    def __enter__(self) -> "_Recording":
-        return self
-
-    def __exit__(self, error_type, error, trace) -> bool:
-        if error_type is not None:  # an interrupted run says so
-            _record(self.args, self.files, complete=False)
-        return False
-
-
-def _bars(args) -> bool:
-    """Progress bars only for a person watching: not with --quiet, not into a redirected log."""
-    return not args.quiet and sys.stderr.isatty()
-
-
-def _check_input_folder(path: str) -> None:
-    if not Path(path).is_dir():
-        raise UserError(f"{path}: no such data folder")
-
-
-def _check_input(path: str) -> None:
-    """Fail fast (before the shape is read) on a missing input file."""
-    file = Path(path)
-    if not file.exists():
-        raise FileNotFoundError(f"{file}: no such file")
-    if file.is_dir():
-        raise UserError(f"{file}: is a folder; give a mesh or point cloud file")
-
-
-def _check_shape_file(path: str) -> None:
-    """Fail fast (before the shape is read) on a missing input or one of an unknown type."""
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES  # imports torch: start-up time
-
-    _check_input(path)
-    file = Path(path)
-    if file.suffix.lower() not in set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES):
-        raise UserError(f"{file}: unsupported file type {file.suffix or '(no suffix)'!r}; expected a mesh "
-                        f"({' '.join(MESH_SUFFIXES)}) or a point cloud ({' '.join(POINT_CLOUD_SUFFIXES)})")
-
-
-def _load_shape(path: str, n_points: int, seed: int):
-    """A mesh (sampled with n_points) or a point cloud (subsampled to at most n_points), normalised."""
-    from .io import load_point_cloud  # imports torch: start-up time
-
-    _check_shape_file(path)
-    return load_point_cloud(path, n_points, seed, fewer_ok=True)
-
-
-def _model_points(state: dict) -> int:
-    """Points per shape the checkpoint's network was trained with (2048 if it does not say)."""
-    value = state.get("config", {}).get("n_points")
-    return value if isinstance(value, int) and value > 0 else 2048
-
-
 def _part_names(text: str) -> tuple[str, ...]:
     names = tuple(n.strip() for n in text.split(","))
     if not all(names):
@@ -579,152 +539,6 @@ def _add_shape_argument(p) -> None:
                    help="mesh or point cloud files, folders (every mesh and point cloud directly inside) or quoted "
                    "glob patterns ('scans/*.ply'); several shapes are processed in one run, a file that fails is "
                    f"reported and skipped, and {SUMMARY_FILE} lists every shape")
-
-
-#: The table of a run over several shapes, written into --out.
-SUMMARY_FILE = "summary.csv"
-
-
-def _shape_files(items: list[str]) -> list[str]:
-    """The input files of SHAPE arguments: files as given, folders and glob patterns expanded (sorted)."""
-    from .io import MESH_SUFFIXES, POINT_CLOUD_SUFFIXES  # imports torch: start-up time
-
-    known = set(MESH_SUFFIXES) | set(POINT_CLOUD_SUFFIXES)
-    files: list[str] = []
-    for item in items:
-        path = Path(item)
-        if path.is_dir():
-            found = sorted(str(f) for f in path.iterdir() if f.is_file() and f.suffix.lower() in known)
-            if not found:
-                raise UserError(f"{path}: a folder without mesh or point cloud files ({' '.join(sorted(known))})")
-            files += found
-        elif not path.exists() and glob.has_magic(item):
-            found = sorted(f for f in glob.glob(item) if Path(f).is_file() and Path(f).suffix.lower() in known)
-            if not found:
-                raise UserError(f"{item}: no mesh or point cloud file matches this pattern")
-            files += found
-        else:
-            if len(items) == 1:
-                _check_shape_file(item)  # one named file: its problems are the run's errors
-            files.append(item)
-    return list(dict.fromkeys(files))  # each file once, in order
-
-
-def _result_stems(paths: list[str], formats) -> list[str]:
-    """A result stem for every input: its file name without suffix, changed where one of the files it names
-    (``result_files``: NAME.json, NAME.<format>, NAME_segmentation.ply) is already another input's, so that
-    ``a.ply`` and ``a_segmentation.ply`` never write over each other's files."""
-    from .results import result_files  # imports torch: start-up time
-
-    stems, taken = [], set()
-    for path in paths:
-        base = stem = Path(path).stem
-        k = 1
-        while any(name in taken for name in result_files(stem, formats).values()):
-            k += 1
-            stem = f"{base}_{k}"
-        taken.update(result_files(stem, formats).values())
-        stems.append(stem)
-    return stems
-
-
-def _run_shapes(args, what: str, prepare) -> int:
-    """The handler of fit and abstract: expand SHAPE, check --out, then abstract every shape with
-    ``one = prepare()`` (``one(path, progress)`` -> a result), write its files and report. With several
-    shapes a failure is reported and skipped, and SUMMARY_FILE lists every shape. Exit code 1 if any failed."""
-    from .results import result_files  # imports torch: start-up time
-
-    shapes = _shape_files(args.shape)
-    stems = _result_stems(shapes, args.mesh_format)
-    names = [n for stem in stems for n in result_files(stem, args.mesh_format).values()]
-    _check_out_dir(args, [*args.shape, *shapes], names)
-    one = prepare()
-
-    from tqdm import tqdm  # start-up time (a quarter of a second)
-
-    if len(shapes) == 1:
-        start = time.perf_counter()
-        with tqdm(total=2, desc=what, disable=not _bars(args), leave=False, delay=_BAR_DELAY) as bar:
-            result = one(shapes[0], _bars(args))
-            bar.update(1)
-            written = _save(args, result, stems[0], bar)
-        _report(args, result, written, time.perf_counter() - start)
-        _record(args, written)
-        return 0
-    rows, files = [], []
-    with _Recording(args, files) as recording:
-        for path, stem in tqdm(zip(shapes, stems), total=len(shapes), desc=what, unit="shape", disable=not _bars(args), delay=_BAR_DELAY):
-            start = time.perf_counter()
-            try:
-                _check_shape_file(path)
-                result = one(path, False)
-                written = _save(args, result, stem, None)
-            except (UserError, ValueError, OSError, FloatingPointError) as exc:
-                message = " ".join(str(exc).split()) or type(exc).__name__
-                message = message if path in message else f"{path}: {message}"
-                if not args.quiet:
-                    tqdm.write(f"cuboidlib {args.command}: skipped {message}", file=sys.stderr)
-                rows.append({"shape": path, "status": "failed", "error": message,
-                             "seconds": f"{time.perf_counter() - start:.2f}"})
-                continue
-            files += written
-            rows.append({"shape": path, "status": "ok", "result": next(Path(f).name for f in written if str(f).endswith(".json")),
-                         "cuboids_used": result.num_existing, "cuboids": result.cuboids.num_cuboids,
-                         "chamfer": f"{result.chamfer:.6g}", "seconds": f"{time.perf_counter() - start:.2f}"})
-            recording.tick()
-    files.append(_write_summary(args.out, rows))
-    _record(args, files)
-    failed = sum(r["status"] == "failed" for r in rows)
-    if not args.quiet:
-        print(f"{len(rows) - failed} of {len(rows)} shapes written to {args.out}"
-              + (f"; {failed} failed (see {SUMMARY_FILE})" if failed else "") + f"; summary: {files[-1]}")
-    return 1 if failed else 0
-
-
-def _save(args, result, stem: str | None, bar) -> list:
-    """Write one result (cuboidlib.abstraction) into --out; returns the paths written."""
-    if bar is not None:
-        bar.set_description("writing files")
-    written = result.save(args.out, stem=stem, formats=args.mesh_format, normalized=args.normalized)
-    if bar is not None:
-        bar.update(1)
-        bar.close()  # before the summary is printed (closing again on leaving the caller's "with" is harmless)
-    return list(written.values())
-
-
-def _report(args, result, written: list, seconds: float) -> None:
-    check = (result.method or {}).get("up_check", {})
-    if check.get("suggested"):
-        up, scores = check["suggested"], check["chamfer"]
-        print(f"warning: {result.source or 'the shape'} looks like it is not +y up: with --up {up} the network "
-              f"reconstructs it {scores['y'] / scores[up]:.1f}x better; pass --up {up} (or --up auto), or --up y "
-              "if it is upright", file=sys.stderr)
-    ref = (result.method or {}).get("reference_check", {})
-    if ref.get("warned"):
-        from .abstraction import reference_check_reasons  # imports torch: start-up time (already loaded here)
-
-        print(f"warning: {result.source or 'the shape'}: {reference_check_reasons(ref)}; this network does not fit "
-              "the shape, `cuboidlib fit` (model=None) fits it without one", file=sys.stderr)
-    if args.quiet:
-        return
-    chosen = (result.method or {}).get("up_auto", {}).get("chosen")
-    if chosen:
-        print(f"--up auto chose up {chosen['up']}, front {chosen['front']} (the lowest Chamfer distance of "
-              f"{len(result.method['up_auto']['chamfer'])} frames)")
-    used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
-    print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
-          f"{result.chamfer:.4g} ({how}; on the normalised shape) | {seconds:.1f} s")
-    print("wrote " + ", ".join(str(p) for p in written))
-
-
-def _write_summary(folder, rows: list[dict]):
-    """SUMMARY_FILE in ``folder``: one row per shape (status, cuboids used, Chamfer distance, seconds, error)."""
-    columns = ["shape", "status", "result", "cuboids_used", "cuboids", "chamfer", "seconds", "error"]
-    text = io.StringIO(newline="")
-    writer = csv.DictWriter(text, columns)
-    writer.writeheader()
-    writer.writerows(rows)
-    return write_text_atomic(Path(folder) / SUMMARY_FILE, text.getvalue())
 
 
 def _add_fit_command(sub) -> None:
@@ -753,6 +567,13 @@ def _add_fit_command(sub) -> None:
 
 
 def _cmd_fit(args) -> int:
+    from ._checks import (MAX_CUBOIDS, MAX_FIT_STEPS, MAX_RESTARTS, MAX_SEED,  # imports torch: start-up time
+                          MAX_SHAPE_POINTS)
+
+    check_sizes(("--cuboids", args.cuboids, MAX_CUBOIDS, 1), ("--steps", args.steps, MAX_FIT_STEPS, 0),
+                ("--restarts", args.restarts, MAX_RESTARTS, 1), ("--points", args.points, MAX_SHAPE_POINTS, 1),
+                ("--seed", args.seed, MAX_SEED, 0))
+
     def prepare():
         from .abstraction import abstract  # imports torch: start-up time
         from .fitting import FitConfig  # imports torch: start-up time
@@ -768,7 +589,7 @@ def _cmd_fit(args) -> int:
 
         return one
 
-    return _run_shapes(args, "fitting", prepare)
+    return run_shapes(args, "fitting", prepare)
 
 
 def _add_abstract_command(sub) -> None:
@@ -799,11 +620,17 @@ def _add_abstract_command(sub) -> None:
 
 
 def _cmd_abstract(args) -> int:
+    from ._checks import MAX_FIT_STEPS, MAX_SEED, MAX_SHAPE_POINTS  # imports torch: start-up time
+
+    check_sizes(("--points", args.points, MAX_SHAPE_POINTS, 1), ("--refine", args.refine, MAX_FIT_STEPS, 0),
+                ("--seed", args.seed, MAX_SEED, 0))
+    checkpoint = resolved_model(args.model)
+
     def prepare():
         from .abstraction import NetworkFitWarning, OrientationWarning, abstract  # imports torch: start-up time
 
-        warnings.simplefilter("ignore", OrientationWarning)  # _report prints it, without a source line
-        warnings.simplefilter("ignore", NetworkFitWarning)  # _report prints it too
+        warnings.simplefilter("ignore", OrientationWarning)  # cli_shapes prints it, without a source line
+        warnings.simplefilter("ignore", NetworkFitWarning)  # cli_shapes prints it too
 
         def one(path: str, progress: bool):
             return abstract(path, args.model, n_points=args.points, seed=args.seed, threshold=args.threshold,
@@ -812,7 +639,7 @@ def _cmd_abstract(args) -> int:
 
         return one
 
-    return _run_shapes(args, "running the network", prepare)
+    return run_shapes(args, "running the network", prepare, inputs=[checkpoint])
 
 
 def _stems(prefix: str, count: int) -> list[str]:
@@ -837,15 +664,15 @@ def _write_decoded(args, decoded, stems: list[str], methods: list[dict], start: 
 
     cuboids = decoded.cuboids.to(device="cpu")
     written = []
-    with _Recording(args, written) as recording:
-        for k in tqdm(range(len(stems)), desc="writing shapes", disable=not _bars(args), leave=False,
-                      delay=_BAR_DELAY):
+    with Recording(args, written) as recording:
+        for k in tqdm(range(len(stems)), desc="writing shapes", disable=not bars(args), leave=False,
+                      delay=BAR_DELAY):
             one = type(cuboids)(cuboids.centers[k:k + 1], cuboids.quaternions[k:k + 1], cuboids.half_sizes[k:k + 1],
                                 cuboids.exists[k:k + 1], validate=False)
             result = Abstraction(one, method=methods[k])
             written += list(result.save(args.out, stems[k], args.mesh_format, normalized=True).values())
             recording.tick()
-    _record(args, written)
+    record(args, written)
     if not args.quiet:
         print(f"{summary()} | {time.perf_counter() - start:.1f} s")
         print(f"wrote {len(written)} files to {args.out} (see them: cuboidlib view {args.out})")
@@ -870,18 +697,15 @@ def _add_generate_command(sub) -> None:
 def _cmd_generate(args) -> int:
     import torch  # start-up time
 
+    from ._checks import MAX_SEED, MAX_SHAPES  # imports torch: start-up time
     from .applications import generate_shapes  # imports torch: start-up time
-
-    from ._checks import MAX_SHAPES, check_size  # imports torch: start-up time
     from .results import result_files  # imports torch: start-up time
 
-    try:
-        check_size(args.count, "--count", MAX_SHAPES, "shapes")
-    except ValueError as exc:
-        raise UserError(str(exc)) from exc
+    check_sizes(("--count", args.count, MAX_SHAPES, 1), ("--seed", args.seed, MAX_SEED, 0))
     start = time.perf_counter()
     stems = _stems("generated", args.count)
-    _check_out_dir(args, [m for m in [args.model] if Path(m).is_file()], [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
+    check_out_dir(args, [resolved_model(args.model)],
+                  [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
     model, _, path = _load_model(args.model, args.device)
     decoded = generate_shapes(model, args.count, torch.Generator().manual_seed(args.seed), args.threshold)
     methods = [{"name": "generate", "checkpoint": str(path), "seed": args.seed, "sample": k,
@@ -916,21 +740,23 @@ def _add_interpolate_command(sub) -> None:
 
 
 def _cmd_interpolate(args) -> int:
+    from ._checks import MAX_SEED, MAX_SHAPE_POINTS, MAX_SHAPES  # imports torch: start-up time
     from .applications import interpolate_latents  # imports torch: start-up time
+    from .results import result_files  # imports torch: start-up time
 
     start = time.perf_counter()
     if args.steps < 2:
         raise UserError(f"--steps must be at least 2 (the two ends), got {args.steps}")
-    from .results import result_files  # imports torch: start-up time
-
-    _check_input(args.shape_a)
-    _check_input(args.shape_b)
+    check_sizes(("--steps", args.steps, MAX_SHAPES, 2), ("--points", args.points, MAX_SHAPE_POINTS, 1),
+                ("--seed", args.seed, MAX_SEED, 0))
+    check_input(args.shape_a)
+    check_input(args.shape_b)
     stems = _stems("step", args.steps)
-    _check_out_dir(args, [args.shape_a, args.shape_b, *[m for m in [args.model] if Path(m).is_file()]],
-                   [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
+    check_out_dir(args, [args.shape_a, args.shape_b, resolved_model(args.model)],
+                  [n for s in stems for n in result_files(s, args.mesh_format, False).values()])
     model, state, path = _load_model(args.model, args.device)
-    n_points = args.points or _model_points(state)
-    clouds = [_load_shape(shape, n_points, args.seed) for shape in (args.shape_a, args.shape_b)]
+    n_points = args.points or model_points(state)
+    clouds = [load_shape(shape, n_points, args.seed) for shape in (args.shape_a, args.shape_b)]
     for shape, pc in zip((args.shape_a, args.shape_b), clouds):
         if len(pc) <= model.config.k:
             raise UserError(f"{shape}: has {len(pc)} points; the network needs more than k = {model.config.k}")
@@ -998,10 +824,6 @@ def _resume_note(args) -> str:
     return f"; --resume continues from step {step} ({last}), the last checkpoint"
 
 
-#: The commands that write into an --out folder, which they lock while they run.
-_WRITES_INTO_OUT = ("train", "fit", "abstract", "generate", "interpolate")
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the ``cuboidlib`` command line.
 
@@ -1019,19 +841,9 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError as exc:
         return _missing_package(exc)
     args.argv, args.started = argv, started
-    try:
-        if args.command in _WRITES_INTO_OUT and os.environ.get("RANK", "0") == "0" and not getattr(
-                args, "print_config", False):
-            try:  # one run at a time writes into a folder (under torchrun, rank 0 holds it)
-                lock = output_lock(args.out)
-                lock.__enter__()
-            except ValueError as exc:
-                raise UserError(f"--out {exc}") from exc
-            try:
-                return int(args.func(args) or 0)
-            finally:
-                lock.__exit__(None, None, None)
-        return int(args.func(args) or 0)
+    try:  # a command that writes holds its output folder from its checks to its end (cli_common.hold_folder)
+        with contextlib.ExitStack() as args.held:
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"cuboidlib {args.command}: interrupted{_resume_note(args)}", file=sys.stderr)
         return 130

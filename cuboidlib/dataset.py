@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES, check_int, check_size
+from ._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES, check_int, check_seed, check_size
 from .config import ConfigDict, derive_seed
 from .files import MANIFEST, result_files_in
 from .io import (
@@ -82,6 +82,7 @@ class DataConfig(ConfigDict):
             check_size(self.n_shapes * self.n_points, f"{name}.n_shapes x n_points", MAX_COLLECTION_POINTS)
         for key in ("data_seed", "split_seed"):
             check_int(getattr(self, key), f"{name}.{key}", minimum=0)
+            check_seed(getattr(self, key), f"{name}.{key}")
         fractions = self.split_fractions
         if not isinstance(fractions, (list, tuple)) or len(fractions) != 3:
             raise ValueError(f"{name}.split_fractions must be (train, validation, test), got {fractions!r}")
@@ -317,6 +318,28 @@ class ShapeSet:
             self.indices[index], self.part_names, self.num_parts,
             None if self.instances is None else self.instances[index],
         )
+
+    def with_part_names(self, names: Sequence[str], where: str = "part_names") -> "ShapeSet":
+        """The shapes with their part labels named: label i is ``names[i]``, and there are ``len(names)`` parts.
+
+        Args:
+            names: one name per part label (e.g. ``cuboidlib.shapes.PART_NAMES[category]``).
+            where: names the names in the message (e.g. "--part-names").
+
+        Returns:
+            A ShapeSet sharing the tensors (itself when the shapes have no labels).
+
+        Raises:
+            ValueError: a label has no name (labels above ``len(names) - 1``).
+        """
+        names = tuple(str(n) for n in names)
+        if self.labels is None:
+            return self
+        top = int(self.labels.max())
+        if not names or top >= len(names):
+            raise ValueError(f"{where}: the part labels go up to {top}, but {len(names)} name(s) are given "
+                             f"({', '.join(names)}); give one name per label, 0 to {top}")
+        return dataclasses.replace(self, part_names=names, num_parts=len(names))
 
     def to(self, device: torch.device | str) -> "ShapeSet":
         """The shapes on ``device`` (``indices`` stay where they are)."""

@@ -25,6 +25,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from ._checks import MAX_CUBOIDS, check_size
 from .results import AbstractionBatch
 from .applications import abstract_shapes
 from .baseline import fit_cluster_boxes
@@ -43,6 +44,7 @@ from .metrics import (
     transfer_part_labels,
 )
 from .dataset import ShapeSet
+from .geometry import Cuboids
 from .model import CuboidAbstractionNet
 
 __all__ = [
@@ -254,7 +256,7 @@ def evaluate_model(
 
 def evaluate_baseline(
     shapes: ShapeSet,
-    num_boxes: int,
+    num_boxes: int | Sequence[int],
     label_transfer_fraction: float = 0.2,
     conventions: Sequence[ChamferConvention] = (ChamferConvention(),),
     seed: int = 0,
@@ -266,21 +268,51 @@ def evaluate_baseline(
 
     Args:
         shapes, label_transfer_fraction, conventions: as in :func:`score_cuboids`.
-        num_boxes: clusters per shape.
+        num_boxes: clusters per shape, at most ``cuboidlib._checks.MAX_CUBOIDS``: one K for every shape, or one
+            per shape (e.g. the network's existing cuboids of each shape, as ``cuboidlib evaluate --baseline``).
         seed: seed of k-means, of the surface samples and of the label-transfer split.
         normal_weight: weight of the normals in the k-means features.
 
     Returns:
-        The dict of :func:`evaluate_model`, with ``method`` "k-means boxes (K=num_boxes)".
+        The dict of :func:`evaluate_model`, with ``method`` "k-means boxes (K=num_boxes)" or, per shape,
+        "k-means boxes (K per shape, mean ...)", ``num_cuboids`` the largest K and ``boxes_per_shape`` the Ks.
     """
-    if not (isinstance(num_boxes, int) and num_boxes >= 1):
-        raise ValueError(f"num_boxes must be a positive integer, got {num_boxes!r}")
-    pred = AbstractionBatch.concatenate([fit_cluster_boxes(p, nrm, num_boxes, normal_weight=normal_weight, seed=seed)
-                                         for p, nrm in zip(shapes.points.cpu(), shapes.normals.cpu())])
-    result = {"method": f"k-means boxes (K={num_boxes})", "num_cuboids": num_boxes}
+    if isinstance(num_boxes, (int, np.integer)) and not isinstance(num_boxes, bool):
+        if num_boxes < 1:
+            raise ValueError(f"num_boxes must be a positive integer, got {num_boxes!r}")
+        counts = [int(num_boxes)] * len(shapes)
+    else:
+        try:
+            counts = list(num_boxes)
+        except TypeError:
+            raise ValueError(f"num_boxes must be a positive integer or one per shape, got {num_boxes!r}") from None
+        if len(counts) != len(shapes):
+            raise ValueError(f"num_boxes gives {len(counts)} counts for {len(shapes)} shapes; give one per shape")
+    counts = [check_size(k, "num_boxes", MAX_CUBOIDS, "boxes") for k in counts]
+    top = max(counts)
+    pred = AbstractionBatch.concatenate([
+        _padded(fit_cluster_boxes(p, nrm, k, normal_weight=normal_weight, seed=seed), top)
+        for p, nrm, k in zip(shapes.points.cpu(), shapes.normals.cpu(), counts)])
+    same = len(set(counts)) == 1
+    method = f"k-means boxes (K={top})" if same else f"k-means boxes (K per shape, mean {np.mean(counts):.2f})"
+    result = {"method": method, "num_cuboids": top}
     result.update(score_cuboids(shapes, pred, label_transfer_fraction, conventions, seed))
     result["shapes_without_existing_cuboid"] = 0
+    result["boxes_per_shape"] = counts[0] if same else counts
     return result
+
+
+def _padded(batch: AbstractionBatch, m: int) -> AbstractionBatch:
+    """One shape's boxes with slots added up to ``m`` (not existing), so that shapes of different K stack."""
+    c, extra = batch.cuboids, m - batch.num_segments
+    if extra == 0:
+        return batch
+    identity = c.quaternions.new_tensor([1.0, 0.0, 0.0, 0.0]).repeat(1, extra, 1)
+    cuboids = Cuboids(torch.cat([c.centers, c.centers.new_zeros(1, extra, 3)], 1),
+                      torch.cat([c.quaternions, identity], 1),
+                      torch.cat([c.half_sizes, c.half_sizes.new_full((1, extra, 3), 1e-3)], 1),
+                      torch.cat([c.exists, c.exists.new_zeros(1, extra)], 1), validate=False)
+    return AbstractionBatch(cuboids, batch.labels)
 
 
 def format_table(results: Sequence[dict], title: str | None = None) -> str:

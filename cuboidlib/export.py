@@ -49,10 +49,12 @@ written (float32 inputs come back bit for bit).
 
 from __future__ import annotations
 
+import html
 import json
 import math
 import os
 import re
+import urllib.parse
 from pathlib import Path
 
 import numpy as np
@@ -771,6 +773,12 @@ def _result_item(json_path: Path) -> tuple[str, Cuboids, np.ndarray, np.ndarray 
     return title, cuboids, points, labels, cuboid_part_names(meta)
 
 
+def _href(name: str) -> str:
+    """A file name beside the page as a link target: percent-encoded (markup, quotes and spaces included), so
+    that no character of a name becomes markup on the page."""
+    return html.escape(urllib.parse.quote(name, safe=""), quote=True)
+
+
 def write_view_html(
     result: str | os.PathLike,
     out: str | os.PathLike | None = None,
@@ -800,13 +808,13 @@ def write_view_html(
     source = Path(result)
     jsons = _result_jsons(source)
     first = Path(out) if out is not None else (source if source.is_dir() else source.parent) / "view.html"
-    if first.suffix.lower() not in (".html", ".htm"):
-        raise ValueError(f"{first}: the page must be an .html file (it is written as HTML); got "
-                         f"{first.suffix or 'no suffix'!r}")
     chunks = [jsons[i:i + per_page] for i in range(0, len(jsons), per_page)]
     pages = [first] + [first.with_name(f"{first.stem}_{k}{first.suffix}") for k in range(2, len(chunks) + 1)]
     inputs = [*jsons, *[p.parent / _points_file(p) for p in jsons if _points_file(p)]]
     check_outputs_spare_inputs(pages, [p for p in inputs if p.exists()], "the page")
+    if first.suffix.lower() not in (".html", ".htm"):
+        raise ValueError(f"{first}: the page must be an .html file (it is written as HTML); got "
+                         f"{first.suffix or 'no suffix'!r}")
     for k, (chunk, page) in enumerate(zip(chunks, pages)):
         items = [_result_item(p) for p in chunk]
         if len(items) == 1:
@@ -818,7 +826,7 @@ def write_view_html(
                                            cols=cols, max_points=max(1, max_points // len(items)))
         html = fig.to_html(include_plotlyjs=True, full_html=True)
         if len(pages) > 1:
-            links = " ".join(f"<b>{i + 1}</b>" if i == k else f'<a href="{p.name}">{i + 1}</a>'
+            links = " ".join(f"<b>{i + 1}</b>" if i == k else f'<a href="{_href(p.name)}">{i + 1}</a>'
                              for i, p in enumerate(pages))
             nav = f'<p style="font-family:sans-serif">{len(jsons)} results, page {k + 1} of {len(pages)}: {links}</p>'
             html = html.replace("<body>", "<body>" + nav, 1)

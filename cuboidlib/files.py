@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["MESH_FORMATS", "MANIFEST", "RESULT_FORMAT", "atomic_path", "write_text_atomic",
-           "check_outputs_spare_inputs", "result_files_in", "LOCK_FILE", "output_lock"]
+           "check_outputs_spare_inputs", "check_distinct_outputs", "result_files_in", "LOCK_FILE", "output_lock"]
 
 #: The file in which a run records the files it wrote in its output folder (:func:`cuboidlib.export.write_manifest`).
 MANIFEST = "cuboidlib-manifest.json"
@@ -106,6 +106,25 @@ def check_outputs_spare_inputs(outputs, inputs, what: str = "output") -> None:
             if given.is_dir() and real.startswith(source.rstrip(os.sep) + os.sep):
                 raise ValueError(f"{what} {output}: lies inside the input folder {given}; results written there "
                                  "would be read as inputs later. Choose an output outside it")
+
+
+def check_distinct_outputs(named) -> None:
+    """Refuse, before any work, two outputs of one run that are the same file (one would overwrite the other).
+
+    Args:
+        named: (label, path) pairs, the label saying what the path is (e.g. "--release", "the card of --release").
+
+    Raises:
+        ValueError: naming both outputs.
+    """
+    seen: dict[str, tuple[str, str]] = {}
+    for label, path in named:
+        real = _real(path)
+        if real in seen and seen[real] != (label, str(path)):  # (the same output named twice is one output)
+            other_label, other = seen[real]
+            raise ValueError(f"{label} {path}: is also {other_label} {other}; this run would write both to one "
+                             "file. Choose another output")
+        seen[real] = (label, str(path))
 
 
 def result_files_in(folder: str | os.PathLike) -> set[str]:

@@ -24,7 +24,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
+from ._checks import (MAX_CUBOIDS, MAX_FIT_STEPS, MAX_RESTARTS, MAX_SHAPE_POINTS, as_float_tensor, check_finite,
+                      check_seed, check_shape, check_size, check_unit_vectors)
 from .results import AbstractionBatch
 from .baseline import kmeans
 from .config import torch_threads
@@ -113,6 +114,9 @@ class FitConfig:
                 raise ValueError(f"{name} must be {rule} integer, got {value!r}")
         if not isinstance(self.steps, int) or isinstance(self.steps, bool) or self.steps < 0:
             raise ValueError(f"steps must be a non-negative integer, got {self.steps!r}")
+        for name, limit in (("num_cuboids", MAX_CUBOIDS), ("restarts", MAX_RESTARTS), ("steps", MAX_FIT_STEPS)):
+            check_size(getattr(self, name), f"FitConfig.{name}", limit, minimum=0 if name == "steps" else 1)
+        check_seed(self.seed, "FitConfig.seed")
         for name in ("lr", "lr_logits"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -500,6 +504,9 @@ def tighten_cuboids(points, cuboids: Cuboids, steps: int = 150, lr: float = 0.00
         if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "n_samples" else 0):
             raise ValueError(f"{name} must be a {'positive' if name == 'n_samples' else 'non-negative'} integer, "
                              f"got {value!r}")
+    check_size(steps, "steps", MAX_FIT_STEPS, minimum=0)
+    check_size(n_samples, "n_samples", MAX_SHAPE_POINTS)
+    check_seed(seed)
     if not (isinstance(lr, (int, float)) and math.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be a finite positive number, got {lr!r}")
     return _tighten(p, cuboids, steps, lr, n_samples, seed, n_points)

@@ -44,6 +44,7 @@ __all__ = [
     "authors_layout_files",
     "write_shape_mesh",
     "write_data_samples",
+    "data_sample_files",
 ]
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
@@ -860,6 +861,25 @@ def write_shape_mesh(path: str | os.PathLike, shape) -> Path:
     return path
 
 
+def _sample_name(category: str, i: int) -> str:
+    return f"{category}_{i}"
+
+
+def data_sample_files(out_dir: str | os.PathLike, n_per_category: int = 3, figure: bool = True) -> list[Path]:
+    """The files :func:`write_data_samples` writes, so that a caller can check them before any work.
+
+    Args:
+        out_dir, n_per_category, figure: as in :func:`write_data_samples`.
+
+    Returns:
+        Their paths: the meshes, the point clouds, ``index.csv`` and (with ``figure``) ``samples.png``.
+    """
+    out = Path(out_dir)
+    names = [_sample_name(c, i) for c in CATEGORIES for i in range(n_per_category)]
+    return ([out / "meshes" / f"{n}.ply" for n in names] + [out / "points" / f"{n}.ply" for n in names]
+            + [out / "index.csv"] + ([out / "samples.png"] if figure else []))
+
+
 def write_data_samples(out_dir: str | os.PathLike, n_per_category: int = 3, n_points: int = 2048,
                        seed: int = 0, figure: bool = True) -> list[Path]:
     """Write the course's sample files (the committed ``data_samples/`` folder).
@@ -887,7 +907,7 @@ def write_data_samples(out_dir: str | os.PathLike, n_per_category: int = 3, n_po
             shape = make_shape(category, index, n_points, seed)
             if shape.structure_id not in seen or index >= 50 * n_per_category:
                 seen.add(shape.structure_id)
-                name = f"{category}_{found}"
+                name = _sample_name(category, found)
                 written.append(write_shape_mesh(out / "meshes" / f"{name}.ply", shape))
                 written.append(write_point_cloud(out / "points" / f"{name}.ply", shape.points, shape.normals,
                                                  shape.labels))

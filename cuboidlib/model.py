@@ -22,7 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._checks import as_float_tensor, check_finite, check_shape
+from ._checks import (MAX_NETWORK_LAYERS, MAX_NETWORK_PARAMETERS, MAX_NETWORK_WIDTH, MAX_NEIGHBOURS, as_float_tensor,
+                      check_finite, check_shape)
 from .config import ConfigDict
 from .edgeconv_fast import FastEdgeConv, FastGlobalFeature
 from .neighbors import knn_indices
@@ -45,11 +46,6 @@ __all__ = [
     "knn_indices",
     "FastEdgeConv",
 ]
-
-# Limits of a ModelConfig (checked before anything is allocated): far above the paper's network.
-_MAX_WIDTH = 8192
-_MAX_LAYERS = 8
-_MAX_PARAMETERS = 50_000_000
 
 #: The values of ModelConfig.input_normals: what the encoder reads of the normals.
 INPUT_NORMALS = ("none", "differences", "absolute")
@@ -142,21 +138,25 @@ class ModelConfig(ConfigDict):
         if isinstance(slope, bool) or not isinstance(slope, (int, float)) or not 0.0 <= slope < 1.0:
             raise ValueError(f"ModelConfig.negative_slope must be a number in [0, 1), got {slope!r}")
         object.__setattr__(self, "negative_slope", float(slope))
-        # Bounds, so that a config read from a file cannot ask for an absurd allocation
+        # Bounds (cuboidlib._checks), so that a config read from a file cannot ask for an absurd allocation
         for name in counts:
-            if getattr(self, name) > _MAX_WIDTH:
-                raise ValueError(f"ModelConfig.{name} = {getattr(self, name)} is above the limit of {_MAX_WIDTH}")
+            if getattr(self, name) > MAX_NETWORK_WIDTH:
+                raise ValueError(f"ModelConfig.{name} = {getattr(self, name)} is above the limit of "
+                                 f"{MAX_NETWORK_WIDTH} (cuboidlib._checks.MAX_NETWORK_WIDTH)")
         for name in ("edge_dims", "cuboid_feature_dims"):
             value = getattr(self, name)
-            if len(value) > _MAX_LAYERS or max(value) > _MAX_WIDTH:
-                raise ValueError(f"ModelConfig.{name} = {list(value)} has more than {_MAX_LAYERS} layers or a "
-                                 f"width above {_MAX_WIDTH}")
-        if self.k > 1024:
-            raise ValueError(f"ModelConfig.k = {self.k} is above the limit of 1024 neighbours")
-        if self.approximate_parameters() > _MAX_PARAMETERS:
+            if len(value) > MAX_NETWORK_LAYERS or max(value) > MAX_NETWORK_WIDTH:
+                raise ValueError(f"ModelConfig.{name} = {list(value)} has more than {MAX_NETWORK_LAYERS} layers or a "
+                                 f"width above {MAX_NETWORK_WIDTH} (cuboidlib._checks.MAX_NETWORK_LAYERS and "
+                                 "MAX_NETWORK_WIDTH)")
+        if self.k > MAX_NEIGHBOURS:
+            raise ValueError(f"ModelConfig.k = {self.k} is above the limit of {MAX_NEIGHBOURS} neighbours "
+                             "(cuboidlib._checks.MAX_NEIGHBOURS)")
+        if self.approximate_parameters() > MAX_NETWORK_PARAMETERS:
             raise ValueError(
                 f"ModelConfig describes a network of about {self.approximate_parameters() / 1e6:.0f} million "
-                f"parameters; at most {_MAX_PARAMETERS / 1e6:.0f} million are accepted (the paper's: "
+                f"parameters; at most {MAX_NETWORK_PARAMETERS / 1e6:.0f} million are accepted "
+                f"(cuboidlib._checks.MAX_NETWORK_PARAMETERS; the paper's: "
                 f"{ModelConfig().approximate_parameters() / 1e6:.1f} million)"
             )
 

@@ -66,7 +66,9 @@ def normalize(points: torch.Tensor | np.ndarray) -> tuple:
     wide = t.double()  # float32 coordinates near their limit would overflow in (hi - lo) and the norm
     lo, hi = wide.amin(dim=-2), wide.amax(dim=-2)
     center = (lo + hi) / 2
-    scale = torch.linalg.vector_norm(hi - lo, dim=-1)
+    extent = hi - lo  # inf only when the box itself exceeds float64
+    largest = extent.abs().amax(dim=-1, keepdim=True).clamp_min(torch.finfo(wide.dtype).tiny)
+    scale = torch.linalg.vector_norm(extent / largest, dim=-1) * largest[..., 0]  # no overflow in the squares
     magnitude = wide.detach().abs().amax(dim=(-2, -1))
     degenerate = scale <= _DEGENERATE_RTOL * magnitude
     if degenerate.any():

@@ -13,12 +13,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ._checks import as_float_tensor, check_finite, check_shape
+from ._checks import MAX_SHAPE_POINTS, as_float_tensor, check_finite, check_shape
 from .neighbors import knn_indices
 
 # Largest cloud estimate_normals accepts: its cost grows as N^2 (about 40 s for 20 000 points on one
-# laptop core); a larger cloud should be subsampled first (load_point_cloud(..., n_points=...)).
-MAX_POINTS = 20_000
+# laptop core); a larger cloud should be subsampled first (load_point_cloud(..., n_points=...)). The limit on
+# points per shape, cuboidlib._checks.MAX_SHAPE_POINTS.
+MAX_POINTS = MAX_SHAPE_POINTS
 
 __all__ = ["MAX_POINTS", "pca_normals", "orient_normals", "estimate_normals", "normal_errors"]
 
@@ -174,7 +175,8 @@ def estimate_normals(points, k: int = 16, orient: bool = True):
     if p.shape[0] > MAX_POINTS:
         raise ValueError(
             f"points holds {p.shape[0]} points; normal estimation takes time N^2 and accepts at most "
-            f"{MAX_POINTS}: subsample first (for files: load_point_cloud(path, n_points=4096)) or provide normals"
+            f"{MAX_POINTS} (cuboidlib._checks.{MAX_POINTS.name}): subsample first (for files: "
+            "load_point_cloud(path, n_points=4096)) or provide normals"
         )
     if float((p.amax(dim=0) - p.amin(dim=0)).max()) == 0.0:
         raise ValueError("points are all identical; no normals can be estimated")

@@ -20,7 +20,7 @@ import torch
 
 from . import kernels
 from .checkpoint import check_config_matches, load_checkpoint, save_checkpoint
-from ._checks import check_int
+from ._checks import MAX_THREADS, check_int, check_seed, check_size
 from .config import derive_seed, read_config_file, resolve_device
 from .files import write_text_atomic
 from .applications import checkpoint_dir
@@ -153,6 +153,7 @@ class TrainConfig(DataConfig):
         for name in ("batch_size", "epochs", "checkpoint_every", "validate_every"):
             check_int(getattr(self, name), f"TrainConfig.{name}", minimum=1)
         check_int(self.seed, "TrainConfig.seed", minimum=0)
+        check_seed(self.seed, "TrainConfig.seed")
         if self.compiled_kernels is not None and not isinstance(self.compiled_kernels, bool):
             raise ValueError(f"TrainConfig.compiled_kernels must be true, false or null (the default: used where they "
                              f"can be built), got {self.compiled_kernels!r}")
@@ -160,6 +161,7 @@ class TrainConfig(DataConfig):
             check_int(self.max_steps, "TrainConfig.max_steps", minimum=1)
         if self.num_threads is not None and self.num_threads != "auto":
             check_int(self.num_threads, "TrainConfig.num_threads (or \"auto\")", minimum=1)
+            check_size(self.num_threads, "TrainConfig.num_threads", MAX_THREADS)
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"TrainConfig.lr must be a positive number, got {self.lr!r}")
         self.lr = float(self.lr)

@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import cuboidlib
 from cuboidlib.abstraction import Abstraction, OrientationWarning
@@ -346,3 +348,35 @@ def test_a_shape_unlike_the_training_shapes_warns_by_its_latent_distance_where_k
     animal = make_shape("animal", 3, n_points=1024)
     own = cuboidlib.abstract(np.concatenate([animal.points, animal.normals], axis=1), model="animal", up="y")
     assert own.method["latent_distance"] < LATENT_DISTANCE  # recorded on every call of a released network
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(log_scale=st.floats(-3, 6), offset=st.tuples(*[st.floats(-1e4, 1e4)] * 3), model=st.sampled_from([None, "chair"]),
+       subsample=st.booleans())
+def test_a_point_cloud_object_gives_the_cuboids_in_its_files_coordinates_property(tmp_path, log_scale, offset, model,
+                                                                                  subsample):
+    """abstract(load_point_cloud(f)) and abstract(f) give the same cuboids, in f's own coordinates; so does a
+    PointCloud holding f's raw points."""
+    from cuboidlib.io import PointCloud, load_point_cloud
+
+    s = make_shape("chair", 1, n_points=300)
+    points = s.points.astype(np.float64) * 10.0**log_scale + np.array(offset)
+    path = write_point_cloud(tmp_path / "moved.ply", points, s.normals, s.labels)
+    n = 200 if subsample else None
+    fit = FitConfig(steps=2, num_cuboids=3)
+    options = dict(n_points=n, up="y", fit_config=fit if model is None else None)
+    from_file = cuboidlib.abstract(path, model, **options)
+    loaded = load_point_cloud(path, n, fewer_ok=True)  # normalised, with the file's centre and scale
+    raw = read_point_cloud(path)  # the file's own coordinates
+    for shape in (loaded, PointCloud(raw.points, raw.normals, raw.labels, source="moved.ply")):
+        result = cuboidlib.abstract(shape, model, **{**options, "n_points": None} if shape is loaded else options)
+        size = float(np.linalg.norm(np.ptp(points, axis=0)))
+        np.testing.assert_allclose(result.scale, from_file.scale, rtol=1e-5)
+        np.testing.assert_allclose(result.center, from_file.center, atol=1e-5 * size)
+        np.testing.assert_allclose(result.numpy()["centers"], from_file.numpy()["centers"], atol=1e-3 * size)
+        np.testing.assert_allclose(result.numpy()["sizes"], from_file.numpy()["sizes"], atol=1e-3 * size)
+        doc = result.to_dict()  # the JSON claims the input's coordinates, and they are
+        assert doc["coordinates"] == "original"
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        centres = result.numpy()["centers"]
+        assert ((centres > lo - 0.5 * size) & (centres < hi + 0.5 * size)).all()

@@ -20,6 +20,8 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import cuboidlib
 from cuboidlib.applications import CHECKPOINT_DIR_ENV
@@ -416,3 +418,115 @@ def test_abstract_says_when_the_shape_is_unlike_the_networks_training_shapes(tmp
     err = capsys.readouterr().err
     assert re.search(r"^warning: insect.ply: it is unlike the shapes the network was trained on \(latent distance "
                      r"[\d.]+, above 12; .*`cuboidlib fit`", err, re.M), err
+
+
+# ----------------------------------------------------------------------------------------------
+# Runs over many shapes: every shape reported, whatever fails
+# ----------------------------------------------------------------------------------------------
+
+BAD_FILES = {
+    "npz.npy": lambda path: (np.savez(path.with_suffix(".npz"), a=np.zeros((5, 3))), path.with_suffix(".npz").rename(path)),
+    "garbage.ply": lambda path: path.write_bytes(b"\x00\xffnot a shape"),
+    "empty.xyz": lambda path: path.write_text(""),
+    "boom.ply": lambda path: path.write_bytes((SAMPLES / "points" / "chair_1.ply").read_bytes()),  # fails inside
+}
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(kinds=st.lists(st.sampled_from(["good", "zup", *BAD_FILES]), min_size=2, max_size=5),
+       names=st.sampled_from(["plain", "formula"]))
+def test_a_folder_run_reports_every_shape_and_skips_any_that_fails_property(tmp_path_factory, capsys, kinds, names):
+    from unittest import mock
+
+    import cuboidlib.abstraction
+    from cuboidlib.abstraction import frame_rotation
+
+    work = tmp_path_factory.mktemp("folder")
+    inputs = work / "in"
+    inputs.mkdir()
+    prefix = {"plain": "", "formula": "=1+"}[names]
+    expected = {}
+    for k, kind in enumerate(kinds):
+        if kind in ("good", "zup"):
+            s = make_shape("chair", 3 if kind == "zup" else k, n_points=1024)  # chair 3 on its back: warned
+            turn = frame_rotation("z") if kind == "zup" else np.eye(3)
+            path = inputs / f"{prefix}{kind}{k}.xyz"
+            np.savetxt(path, np.concatenate([s.points @ turn, s.normals @ turn], axis=1))
+        else:
+            path = inputs / f"{prefix}{k}{kind}"
+            BAD_FILES[kind](path)
+        expected[path.name] = kind
+    real = cuboidlib.abstraction.abstract
+
+    def abstract(path, *args, **kwargs):
+        if "boom" in str(path):
+            raise RuntimeError("something unforeseen")
+        return real(path, *args, **kwargs)
+
+    out = work / "out"
+    with mock.patch.object(cuboidlib.abstraction, "abstract", abstract):
+        code = main(["abstract", str(inputs), "--model", "chair", "--out", str(out)])
+    captured = capsys.readouterr()
+    failed = [name for name, kind in expected.items() if kind not in ("good", "zup")]
+    assert code == (1 if failed else 0), captured.err
+    assert "Traceback" not in captured.err
+    with open(out / "summary.csv", newline="") as f:
+        rows = {Path(r["shape"].lstrip("'")).name: r for r in csv.DictReader(f)}
+    assert set(rows) == set(expected), "every shape has a row"
+    for name, kind in expected.items():
+        row = rows[name]
+        assert row["status"] == ("ok" if kind in ("good", "zup") else "failed"), row
+        for cell in row.values():  # no cell is a live formula
+            assert cell[:1] not in ("=", "+", "-", "@")
+        if kind in ("good", "zup"):
+            result = out / row["result"].lstrip("'")
+            assert result.is_file() and read_cuboids_json(result)[1]["source"] == name
+            assert row["frame"] == "up y, front z"
+            if row["warning"]:  # each warning is printed with the shape's name, and kept in its row
+                assert f"warning: {name}" in captured.err and row["warning"].lstrip("'").startswith(name)
+            if kind == "zup":
+                assert "looks like it is not +y up" in row["warning"]
+        else:
+            assert f"skipped {inputs / name}" in captured.err and name in row["error"]
+            assert "(unexpected)" in row["error"] if kind == "boom" else True
+    last = captured.out.strip().splitlines()[-1]
+    assert last.startswith(f"{len(expected) - len(failed)} of {len(expected)} shapes written to {out}")
+    assert (f"; {len(failed)} failed" in last) == bool(failed)
+    manifest = json.loads((out / "cuboidlib-manifest.json").read_text())
+    assert manifest["complete"] and "summary.csv" in manifest["files"]
+
+
+def test_a_folder_run_says_which_frame_up_auto_chose_for_each_shape(tmp_path, capsys):
+    from cuboidlib.abstraction import frame_rotation
+
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for k, up in enumerate(("y", "z")):
+        s = make_shape("chair", k, n_points=1024)
+        turn = frame_rotation(up)
+        np.savetxt(inputs / f"chair_{up}.xyz", np.concatenate([s.points @ turn, s.normals @ turn], axis=1))
+    assert main(["abstract", str(inputs), "--model", "chair", "--up", "auto", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    with open(tmp_path / "out" / "summary.csv", newline="") as f:
+        rows = {Path(r["shape"]).name: r for r in csv.DictReader(f)}
+    for name, row in rows.items():
+        chosen = read_cuboids_json(tmp_path / "out" / row["result"])[1]["method"]["up_auto"]["chosen"]
+        frame = f"up {chosen['up']}, front {chosen['front']}"
+        assert row["frame"] == frame and f"{inputs / name}: --up auto chose {frame}" in out
+    assert rows["chair_z.xyz"]["frame"].startswith("up z")
+
+
+@pytest.mark.parametrize("names", [["cuboidlib-manifest.ply"], ["cuboidlib-manifest.ply", "summary.ply", "a.ply"]])
+def test_an_input_named_like_a_reserved_file_gets_a_result_of_its_own(tmp_path, capsys, names):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for name in names:
+        (inputs / name).write_bytes((SAMPLES / "points" / "chair_0.ply").read_bytes())
+    out = tmp_path / "out"
+    assert main(["fit", *(str(inputs / n) for n in names), "--out", str(out), "--steps", "2", "--cuboids", "3",
+                 "--points", "128", "--quiet"]) == 0
+    manifest = json.loads((out / "cuboidlib-manifest.json").read_text())
+    assert manifest["format"] == "cuboidlib-manifest" and manifest["complete"]
+    results = [p for p in out.glob("*.json") if p.name != "cuboidlib-manifest.json"]
+    assert sorted(read_cuboids_json(p)[1]["source"] for p in results) == sorted(names)
+    assert "cuboidlib-manifest_2.json" in manifest["files"]

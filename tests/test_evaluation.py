@@ -3,6 +3,8 @@ import os
 
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cuboidlib.cli import main
 from cuboidlib.evaluation import (
@@ -21,6 +23,12 @@ from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.shapes import make_shape
 from cuboidlib.dataset import ShapeSet, load_splits
 from cuboidlib.train import TrainConfig, Trainer
+
+
+def load_model_for_test(path):
+    from cuboidlib.checkpoint import load_model
+
+    return load_model(path)[0]
 
 TINY = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
                          cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
@@ -169,7 +177,7 @@ def test_baseline_fits_separate_boxes_and_reports_the_same_metrics():
     # k-means finds the two boxes, whose principal-axis boxes are close to the true ones
     assert r["normal_consistency"] > perfect["normal_consistency"] - 0.05
     assert r["chamfer"][0]["value"] < 2 * perfect["chamfer"][0]["value"]
-    assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid"}
+    assert set(r) == set(perfect) | {"method", "num_cuboids", "shapes_without_existing_cuboid", "boxes_per_shape"}
     assert r["reassigned"] is None  # k-means boxes have no allocation
     # the perfect segmentation neither cuts nor merges; k-means finds the same two boxes
     for scores in (perfect, r):
@@ -222,7 +230,8 @@ def test_evaluate_command_scores_the_test_split(tmp_path, capsys, monkeypatch):
     n_test = len(load_splits(config)["test"])
     assert data["split"] == "test" and [r["n_shapes"] for r in data["results"]] == [n_test] * 3
     network, merged, kmeans = data["results"]
-    assert kmeans["num_cuboids"] == max(1, round(network["n_ac"]))  # as many boxes as the network's cuboids
+    counts = predict_cuboids(load_model_for_test(tmp_path / "run" / "best.pt"), load_splits(config)["test"])[0]
+    assert kmeans["boxes_per_shape"] in (counts.num_existing().tolist(), counts.num_existing().tolist()[0])
     assert network["merge_growth"] is None and merged["merge_growth"] == 0.25 and merged["n_ac"] <= network["n_ac"]
     with pytest.raises(SystemExit) as bad:
         main(["evaluate", str(tmp_path / "run" / "best.pt"), "--merge", "-1"])
@@ -245,3 +254,53 @@ def test_evaluate_command_scores_the_test_split(tmp_path, capsys, monkeypatch):
     assert ext["split"] == "all" and ext["results"][0]["n_shapes"] == 5 and 0 <= ext["results"][0]["miou"] <= 1
     assert main(["evaluate", str(tmp_path / "run" / "best.pt"), "--data-dir", str(tmp_path / "none")]) == 2
     assert "no such data folder" in capsys.readouterr().err
+
+
+@settings(max_examples=15, deadline=None)
+@given(counts=st.lists(st.integers(1, 6), min_size=2, max_size=5))
+def test_kmeans_boxes_per_shape_are_the_counts_given_property(counts):
+    shapes, _ = _two_box_shapes(n_shapes=len(counts), n_points=96)
+    r = evaluate_baseline(shapes, counts, conventions=[ChamferConvention(n_samples=64)])
+    same = len(set(counts)) == 1
+    assert r["boxes_per_shape"] == (counts[0] if same else counts) and r["num_cuboids"] == max(counts)
+    assert r["n_ac"] <= sum(counts) / len(counts) + 1e-9  # a box exists where its cluster has points
+    assert r["method"] == (f"k-means boxes (K={counts[0]})" if same else
+                           f"k-means boxes (K per shape, mean {sum(counts) / len(counts):.2f})")
+    with pytest.raises(ValueError, match="for 2 shapes; give one per shape"):
+        evaluate_baseline(shapes.subset(torch.arange(2)), [1, 2, 3])
+
+
+@pytest.mark.parametrize("category", ["chair", "airplane"])
+def test_evaluate_on_a_labelled_folder_names_the_parts_and_scores_every_shape(tmp_path, capsys, category):
+    from cuboidlib.applications import load_trained_model
+    from cuboidlib.dataset import DataConfig, load_shapes, split_indices
+    from cuboidlib.shapes import PART_NAMES
+
+    folder = tmp_path / "labelled"
+    folder.mkdir()
+    n = 12
+    for k in range(n):
+        s = make_shape(category, 200 + k, n_points=1100)
+        write_point_cloud(folder / f"{category}_{k}.ply", s.points * 3 - 1, s.normals, s.labels)
+    base = ["evaluate", category, "--data-dir", str(folder), "--samples", "128", "--device", "cpu"]
+    assert main([*base, "--baseline", "--json", str(tmp_path / "all.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"{category}: {category}, data folder {folder}, every shape ({n} shapes" in out.splitlines()[0]
+    assert "part labels transferred from 2 shapes" in out and f"to the other {n - 2}" in out
+    names = PART_NAMES[category]
+    assert f"IoU per part (%), network" in out and all(f"{name} " in out for name in names) and "part 0" not in out
+    data = json.loads((tmp_path / "all.json").read_text())
+    network, kmeans = data["results"]
+    assert data["split"] == "all" and network["n_shapes"] == kmeans["n_shapes"] == n
+    assert list(network["part_iou"]) == list(names)
+    model = load_trained_model(category)[0]
+    shapes = load_shapes(DataConfig(category=category, data_dir=str(folder), n_points=1024))
+    per_shape = predict_cuboids(model, shapes, centers_from_allocation=True)[0].num_existing().tolist()
+    assert kmeans["boxes_per_shape"] in (per_shape, per_shape[0])  # the network's own count, shape by shape
+    assert main([*base, "--split", "test"]) == 0
+    n_test = len(split_indices(n, DataConfig().split_fractions, DataConfig().split_seed)["test"])
+    assert f"test split ({n_test} of {n} shapes; --split all scores every one" in capsys.readouterr().out
+    assert main([*base, "--part-names", "a,b"]) == 2
+    assert "--part-names: the part labels go up to" in capsys.readouterr().err
+    assert main([*base, "--part-names", ",".join(f"p{i}" for i in range(len(names)))]) == 0
+    assert "p0 " in capsys.readouterr().out

@@ -17,18 +17,21 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cuboidlib import io
-from cuboidlib.applications import abstract_shapes, load_trained_model, resolve_checkpoint
+import cuboidlib
+from cuboidlib import _checks, io
+from cuboidlib.applications import (abstract_shapes, generate_shapes, interpolate_codes, latent_distance,
+                                    load_trained_model, resolve_checkpoint)
 from cuboidlib.baseline import fit_cluster_boxes
 from cuboidlib.checkpoint import load_checkpoint, load_model
 from cuboidlib.cli import main
 from cuboidlib.distance import chamfer_distance
 from cuboidlib.export import write_segmented_point_cloud
-from cuboidlib.fitting import FitConfig, fit_cuboids
+from cuboidlib.fitting import FitConfig, fit_cuboids, tighten_cuboids
 from cuboidlib.metrics import mean_iou, normal_consistency, part_ious
 from cuboidlib.normalization import denormalize, normalize
 from cuboidlib.normals import MAX_POINTS, estimate_normals
 from cuboidlib.shapes import ShapeCollection, make_collection, make_shape
+from cuboidlib.train import TrainConfig
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "data_samples" / "checkpoints"
 
@@ -94,7 +97,7 @@ def test_segmented_cloud_with_huge_labels_is_quick_and_bounded(tmp_path, chair):
 
 
 def test_normal_estimation_refuses_clouds_beyond_its_limit():
-    with pytest.raises(ValueError, match=f"at most {MAX_POINTS}: subsample first"):
+    with pytest.raises(ValueError, match=rf"at most {MAX_POINTS} \(cuboidlib._checks.MAX_SHAPE_POINTS\): subsample first"):
         estimate_normals(np.random.default_rng(0).random((MAX_POINTS + 1, 3)))
 
 
@@ -479,7 +482,7 @@ def test_no_output_is_an_input_or_lies_inside_one(tmp_path, capsys):
     # view: the page may not be a result (or its points), and must be HTML
     result = out / "table_0.json"
     text = result.read_text()
-    for page, message in ((result, "must be an .html file"), (out / "view.htm", None)):
+    for page, message in ((result, "is the input"), (out / "page.txt", "must be an .html file"), (out / "view.htm", None)):
         code = main(["view", str(result), "--out", str(page), "--quiet"])
         if message:
             assert code == 2 and message in capsys.readouterr().err
@@ -599,7 +602,6 @@ def test_a_data_folder_never_reads_cuboidlibs_own_results_as_shapes(tmp_path, wi
 def test_every_path_that_samples_or_allocates_checks_one_size_limit_first(tmp_path, capsys):
     from cuboidlib._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES
     from cuboidlib.dataset import DataConfig
-    from cuboidlib.train import TrainConfig
 
     too_many = f"above the limit of {MAX_SHAPE_POINTS:,}"
     start = time.perf_counter()
@@ -707,3 +709,329 @@ def test_a_checkpoint_never_chooses_a_folder_to_read(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "trained on the data folder /usr" in err and "--data-dir /usr" in err
     assert time.perf_counter() - start < 20  # refused, not scanned
+
+
+# ------------------------------------------------------------------------------ limits: every one named, arrays as files
+
+
+LIMIT_NAMES = [name for name in dir(_checks) if isinstance(getattr(_checks, name), _checks.Limit)]
+FAST = settings(max_examples=40, deadline=None,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+_NETWORK = {}
+
+
+def _chair_network():
+    if "chair" not in _NETWORK:
+        _NETWORK["chair"] = load_trained_model("chair")[0]
+    return _NETWORK["chair"]
+
+
+def _cloud_array(n: int = 64) -> np.ndarray:
+    return np.random.default_rng(0).random((n, 3))
+
+
+#: (what, limit, call with the size): every library entry that samples, allocates or repeats something.
+LIBRARY_SIZES = [
+    ("FitConfig.num_cuboids", _checks.MAX_CUBOIDS, lambda v: FitConfig(num_cuboids=v)),
+    ("FitConfig.restarts", _checks.MAX_RESTARTS, lambda v: FitConfig(restarts=v)),
+    ("FitConfig.steps", _checks.MAX_FIT_STEPS, lambda v: FitConfig(steps=v)),
+    ("abstract(array, n_points)", _checks.MAX_SHAPE_POINTS,
+     lambda v: cuboidlib.abstract(_cloud_array(), None, n_points=v)),
+    ("abstract(tensor, n_points)", _checks.MAX_SHAPE_POINTS,
+     lambda v: cuboidlib.abstract(torch.as_tensor(_cloud_array()), "chair", n_points=v)),
+    ("abstract(PointCloud, n_points)", _checks.MAX_SHAPE_POINTS,
+     lambda v: cuboidlib.abstract(io.PointCloud(_cloud_array()), None, n_points=v)),
+    ("abstract(file, n_points)", _checks.MAX_SHAPE_POINTS, lambda v: cuboidlib.abstract(SAMPLE_MESH, None, n_points=v)),
+    ("abstract(refine)", _checks.MAX_FIT_STEPS, lambda v: cuboidlib.abstract(_cloud_array(), "chair", refine=v)),
+    ("generate_shapes", _checks.MAX_SHAPES, lambda v: generate_shapes(_chair_network(), v)),
+    ("interpolate_codes", _checks.MAX_SHAPES,
+     lambda v: interpolate_codes(_chair_network(), torch.zeros(64), torch.zeros(64), steps=v)),
+    ("TrainConfig.num_threads", _checks.MAX_THREADS, lambda v: TrainConfig(num_threads=v)),
+    ("make_shape", _checks.MAX_SHAPE_POINTS, lambda v: make_shape("chair", 0, n_points=v)),
+]
+
+
+@FAST
+@given(entry=st.sampled_from(LIBRARY_SIZES), excess=st.integers(1, 10**12))
+def test_every_library_size_above_its_limit_is_refused_naming_that_limit_property(entry, excess):
+    what, limit, call = entry
+    start = time.perf_counter()
+    with pytest.raises(ValueError) as info:
+        call(int(limit) + excess)
+    message = str(info.value)
+    assert f"above the limit of {limit:,} (cuboidlib._checks.{limit.name})" in message, (what, message)
+    assert all(f"_checks.{other}" not in message for other in LIMIT_NAMES if other != limit.name), message
+    assert time.perf_counter() - start < 5, f"{what}: refused after work"
+
+
+#: (option, limit, argv with the value): every size option of the command line.
+CLI_SIZES = [
+    ("--cuboids", _checks.MAX_CUBOIDS, ["fit", str(SAMPLE_MESH), "--cuboids"]),
+    ("--restarts", _checks.MAX_RESTARTS, ["fit", str(SAMPLE_MESH), "--restarts"]),
+    ("--steps", _checks.MAX_FIT_STEPS, ["fit", str(SAMPLE_MESH), "--steps"]),
+    ("--points", _checks.MAX_SHAPE_POINTS, ["fit", str(SAMPLE_MESH), "--points"]),
+    ("--points", _checks.MAX_SHAPE_POINTS, ["abstract", str(SAMPLE_MESH), "--model", "chair", "--points"]),
+    ("--refine", _checks.MAX_FIT_STEPS, ["abstract", str(SAMPLE_MESH), "--model", "chair", "--refine"]),
+    ("--count", _checks.MAX_SHAPES, ["generate", "--model", "chair", "--count"]),
+    ("--steps", _checks.MAX_SHAPES, ["interpolate", str(SAMPLE_MESH), str(SAMPLE_MESH), "--model", "chair",
+                                     "--steps"]),
+    ("--samples", _checks.MAX_SHAPE_POINTS, ["evaluate", "chair", "--samples"]),
+    ("--baseline-boxes", _checks.MAX_CUBOIDS, ["evaluate", "chair", "--baseline", "--baseline-boxes"]),
+    ("--threads", _checks.MAX_THREADS, ["train", "--threads"]),
+    ("--per-category", _checks.MAX_SHAPES, ["samples", "--per-category"]),
+    ("--points", _checks.MAX_SHAPE_POINTS, ["samples", "--points"]),
+]
+
+
+@FAST
+@given(entry=st.sampled_from(CLI_SIZES), excess=st.integers(1, 10**12))
+def test_every_command_line_size_above_its_limit_is_one_line_naming_that_limit_property(tmp_path, capsys, entry,
+                                                                                      excess):
+    option, limit, argv = entry
+    out = tmp_path / f"out{excess}"
+    outputs = {"evaluate": [], "train": ["--out", str(out)]}.get(argv[0], ["--out", str(out)])
+    start = time.perf_counter()
+    assert main([*argv, str(int(limit) + excess), *outputs]) == 2
+    message = capsys.readouterr().err.strip()
+    assert message.count("\n") == 0 and f"error: {option} is {int(limit) + excess:,}" in message, message
+    assert f"above the limit of {limit:,} (cuboidlib._checks.{limit.name})" in message, message
+    assert not out.exists() and time.perf_counter() - start < 5
+
+
+@FAST
+@given(seed=st.one_of(st.integers(_checks.MAX_SEED + 1, 2**300), st.integers(-2**100, -1)),
+       entry=st.sampled_from(["abstract_fit", "abstract_network", "FitConfig", "TrainConfig", "tighten", "fit",
+                              "generate", "interpolate", "evaluate", "samples"]))
+def test_seeds_beyond_what_the_generators_take_are_refused_by_name_property(tmp_path, capsys, seed, entry):
+    calls = {
+        "abstract_fit": lambda: cuboidlib.abstract(_cloud_array(), None, seed=seed),
+        "abstract_network": lambda: cuboidlib.abstract(_cloud_array(), "chair", seed=seed),
+        "FitConfig": lambda: FitConfig(seed=seed),
+        "TrainConfig": lambda: TrainConfig(seed=seed),
+        "tighten": lambda: tighten_cuboids(torch.rand(1, 20, 3), fit_cluster_boxes(torch.rand(20, 3), torch.rand(20, 3),
+                                                                                    2).cuboids, seed=seed),
+    }
+    out = str(tmp_path / "out")
+    argv = {"fit": ["fit", str(SAMPLE_MESH), "--out", out, "--seed"],
+            "generate": ["generate", "--model", "chair", "--out", out, "--seed"],
+            "interpolate": ["interpolate", str(SAMPLE_MESH), str(SAMPLE_MESH), "--model", "chair", "--out", out,
+                            "--seed"],
+            "evaluate": ["evaluate", "chair", "--seed"], "samples": ["samples", "--out", out, "--seed"]}
+    if entry in calls:
+        with pytest.raises(ValueError) as info:
+            calls[entry]()
+        message = str(info.value)
+    else:
+        try:
+            code = main([*argv[entry], str(seed)])
+        except SystemExit as exit_:  # argparse's own refusal of a negative seed
+            code = exit_.code
+        assert code == 2
+        message = capsys.readouterr().err
+    assert "seed" in message and "Overflow" not in message and "Traceback" not in message, message
+    assert seed < 0 or "MAX_SEED" in message, message
+    assert not (tmp_path / "out").exists()
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(exponent=st.integers(39, 307), form=st.sampled_from(["array", "tensor", "PointCloud", "file"]),
+       offset=st.booleans())
+def test_coordinates_the_result_files_cannot_hold_are_refused_at_the_entry_property(tmp_path, exponent, form, offset):
+    shape = make_shape("chair", 0, n_points=256)
+    size = 10.0**exponent
+    points = shape.points.astype(np.float64) * (1.0 if offset else size) + (size if offset else 0.0)
+    if offset and np.ptp(points, axis=0).max() == 0:  # a shape lost in float64 is refused as identical points
+        return
+    given_shape = {"array": lambda: points, "tensor": lambda: torch.as_tensor(points),
+                   "PointCloud": lambda: io.PointCloud(shape.points, center=np.full(3, size if offset else 0.0),
+                                                       scale=1.0 if offset else size)}.get(form)
+    if form == "file":
+        np.savetxt(tmp_path / f"far{exponent}.xyz", points)
+        given_shape = lambda: tmp_path / f"far{exponent}.xyz"  # noqa: E731
+    for model in (None, "chair"):
+        with pytest.raises(ValueError, match=r"coordinates reach .* above the limit of 1e\+38 \(cuboidlib._checks."
+                                             r"MAX_COORDINATE\)|coordinates up to .* exceed the float32 range"):  # reader
+            cuboidlib.abstract(given_shape(), model, up="y")
+
+
+@pytest.mark.parametrize("exponent", [39, 200, 300])
+def test_the_fit_of_float64_points_far_beyond_float32_works_in_their_units(chair, exponent):
+    points = torch.as_tensor(chair.points, dtype=torch.float64) * 10.0**exponent
+    r = fit_cuboids(points, torch.as_tensor(chair.normals), FitConfig(steps=2, num_cuboids=3))
+    half = r.cuboids.half_sizes[r.cuboids.exists]
+    assert torch.isfinite(r.cuboids.centers).all() and 10.0**(exponent - 3) < float(half.amax()) < 10.0**exponent
+
+
+def test_a_shape_at_1e30_is_abstracted_in_its_own_units():
+    shape = make_shape("chair", 0, n_points=512)
+    result = cuboidlib.abstract(shape.points.astype(np.float64) * 1e30, "chair", up="y")
+    sizes = result.numpy()["sizes"]
+    assert np.isfinite(sizes).all() and 1e27 < sizes.max() < 2e30
+
+
+@pytest.mark.parametrize("entry", ["abstract", "fit_cuboids", "abstract_shapes", "normalize", "latent_distance"])
+def test_tensors_without_values_are_refused_by_name(entry):
+    meta = torch.empty(64, 3, device="meta")
+    calls = {"abstract": lambda: cuboidlib.abstract(meta, None),
+             "fit_cuboids": lambda: fit_cuboids(meta, meta, FitConfig(steps=1)),
+             "abstract_shapes": lambda: abstract_shapes(_chair_network(), meta),
+             "normalize": lambda: normalize(meta),
+             "latent_distance": lambda: latent_distance(torch.empty(64, device="meta"),
+                                                        load_checkpoint(CHECKPOINTS / "chair.pt")["latent_statistics"])}
+    with pytest.raises((TypeError, ValueError), match="'meta' device, which holds a shape but no values"):
+        calls[entry]()
+
+
+STATISTICS_DAMAGE = st.sampled_from(["no mean", "no whitening", "empty", "not a dict", "short mean", "flat whitening",
+                                     "nan"])
+
+
+@settings(max_examples=14, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(damage=STATISTICS_DAMAGE)
+def test_incomplete_latent_statistics_are_named_at_the_entry_property(tmp_path, damage):
+    state = load_checkpoint(CHECKPOINTS / "chair.pt")
+    good = state["latent_statistics"]
+    bad = {"no mean": {"whitening": good["whitening"]}, "no whitening": {"mean": good["mean"]}, "empty": {},
+           "not a dict": [good["mean"]], "short mean": {**good, "mean": good["mean"][:5]},
+           "flat whitening": {**good, "whitening": good["whitening"].flatten()},
+           "nan": {**good, "mean": good["mean"] * float("nan")}}[damage]
+    with pytest.raises(ValueError, match="statistics|latent_statistics"):
+        latent_distance(torch.zeros(1, 64), bad)
+    torch.save(dict(state, latent_statistics=bad), tmp_path / f"{damage.replace(' ', '_')}.pt")
+    with pytest.raises(ValueError, match=rf"{damage.replace(' ', '_')}.pt: latent_statistics"):
+        cuboidlib.abstract(_cloud_array(256), tmp_path / f"{damage.replace(' ', '_')}.pt", up="y", check=True)
+
+
+# ------------------------------------------------------------------------------ one rule: no output is an input
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory):
+    """Inputs of every writing command: shapes in data/, a checkpoint with its card, configs and a result folder."""
+    ws = tmp_path_factory.mktemp("ws")
+    (ws / "data").mkdir()
+    for name, k in (("shape", 0), ("other", 1)):
+        s = make_shape("chair", k, n_points=256)
+        io.write_point_cloud(ws / "data" / f"{name}.ply", s.points, s.normals, s.labels)
+    (ws / "net.pt").write_bytes((CHECKPOINTS / "chair.pt").read_bytes())
+    (ws / "net.json").write_text('{"card": "of net.pt"}\n')
+    (ws / "cfg.json").write_text('{"max_steps": 1, "n_shapes": 8, "n_points": 64}\n')
+    (ws / "ft.json").write_text('{"max_steps": 1}\n')
+    assert main(["fit", str(ws / "data" / "shape.ply"), "--out", str(ws / "res"), *FAST_FIT]) == 0
+    (ws / "links").mkdir()
+    return ws
+
+
+def _snapshot(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): (os.readlink(p) if p.is_symlink() else p.read_bytes() if p.is_file() else None)
+            for p in sorted(folder.rglob("*"))}
+
+
+#: (argv with OUT for the output, the input OUT names, what the message says): an input named as an output of
+#: every command that writes.
+NAMED_AS_OUTPUT = [
+    (["fit", "data/shape.ply", "--out", "OUT", *FAST_FIT], "data/shape.ply", "is the input"),
+    (["fit", "data", "--out", "OUT", *FAST_FIT], "data", "is the input"),
+    (["fit", "data", "--out", "OUT", *FAST_FIT], "data/results", "lies inside the input folder"),
+    (["fit", "data/shape.ply", "--out", "OUT", "--mesh-format", "ply", *FAST_FIT], "data", "is the input"),
+    (["abstract", "data/shape.ply", "--model", "net.pt", "--out", "OUT"], "net.pt", "is the input"),
+    (["generate", "--model", "net.pt", "--out", "OUT"], "net.pt", "is the input"),
+    (["interpolate", "data/shape.ply", "data/other.ply", "--model", "net.pt", "--out", "OUT"], "data/other.ply",
+     "is the input"),
+    (["evaluate", "net.pt", "--json", "OUT"], "net.pt", "is the input"),
+    (["evaluate", "net.pt", "--json", "OUT"], "net.json", "is the input"),
+    (["evaluate", "net.pt", "--data-dir", "data", "--json", "OUT"], "data/scores.json", "lies inside the input folder"),
+    (["train", "--config", "cfg.json", "--out", "run", "--release", "OUT"], "cfg.pt", "is the input"),
+    (["train", "--config", "cfg.json", "--finetune", "ft.json", "--out", "run", "--release", "OUT"], "ft.pt",
+     "is the input"),
+    (["train", "--config", "cfg.json", "--out", "OUT"], "cfg.json", "is the input"),
+    (["train", "--config", "cfg.json", "--data-dir", "data", "--out", "OUT"], "data/run", "lies inside the input"),
+    (["train", "--config", "cfg.json", "--out", "run", "--release", "OUT"], "run/best.pt", "is also the run's best.pt"),
+    (["view", "res", "--out", "OUT"], "res/shape.json", "is the input"),
+    (["view", "res/shape.json", "--out", "OUT"], "res/shape_segmentation.ply", "is the input"),
+]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(case=st.sampled_from(NAMED_AS_OUTPUT), spelling=st.sampled_from(["relative", "absolute", "dotdot", "link"]))
+def test_no_command_writes_over_its_inputs_however_the_output_is_spelled_property(workspace, monkeypatch, capsys,
+                                                                                  case, spelling):
+    argv, target, says = case
+    monkeypatch.chdir(workspace)
+    path = workspace / target
+    if spelling == "link":
+        if not path.exists() or target.endswith(".pt") and "--release" in argv:  # a card is found by its name
+            return
+        link = workspace / "links" / f"to_{path.name}"
+        link.unlink(missing_ok=True)
+        link.symlink_to(path)
+        spelled = str(link)
+    else:
+        spelled = {"relative": target, "absolute": str(path),
+                   "dotdot": f"links/../{target}"}[spelling]
+    before = _snapshot(workspace)
+    start = time.perf_counter()
+    assert main([a if a != "OUT" else spelled for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err and err.count("\n") == 1, err
+    assert _snapshot(workspace) == before, "nothing written, created or removed"
+    assert time.perf_counter() - start < 10, "refused before any work"
+
+
+def test_samples_never_replace_existing_files_unless_forced(tmp_path, capsys):
+    samples = ["samples", "--out", str(tmp_path), "--per-category", "1", "--points", "64", "--no-figure"]
+    assert main(samples) == 0
+    capsys.readouterr()
+    before = _snapshot(tmp_path)
+    assert main(samples) == 2
+    err = capsys.readouterr().err
+    assert "already holds 9 of the sample files" in err and "--force" in err
+    assert _snapshot(tmp_path) == before
+    committed = tmp_path / "committed"  # a copy of one committed file: data_samples/ as it is in the repository
+    (committed / "meshes").mkdir(parents=True)
+    (committed / "meshes" / "chair_0.ply").write_bytes((SAMPLE_MESH.parent / "chair_0.ply").read_bytes())
+    assert main(["samples", "--out", str(committed)]) == 2
+    assert "chair_0.ply" in capsys.readouterr().err
+    assert sorted(p.name for p in committed.rglob("*")) == ["chair_0.ply", "meshes"]
+    assert main([*samples, "--force"]) == 0
+
+
+# ------------------------------------------------------------------------------ markup and formulas in names
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(name=st.lists(st.sampled_from(["<", ">", '"', "'", "&", "=", ";", "%", " ", "a", "script", "onload"]),
+                     min_size=1, max_size=8).map("".join).map(str.strip).filter(lambda s: s not in ("", ".", "..")))
+def test_page_links_never_carry_markup_from_a_name_property(workspace, name):
+    from html import unescape
+    from urllib.parse import unquote
+
+    from cuboidlib.export import write_view_html
+
+    two = workspace / "two_results"  # more results than a page holds: pages linked to each other
+    if not two.exists():
+        two.mkdir()
+        for stem in ("a", "b"):
+            (two / f"{stem}.json").write_bytes((workspace / "res" / "shape.json").read_bytes())
+        (two / "shape_segmentation.ply").write_bytes((workspace / "res" / "shape_segmentation.ply").read_bytes())
+    pages = write_view_html(two, workspace / "pages" / f"{name}.html", max_points=50, per_page=1)
+    assert len(pages) == 2
+    text = pages[0].read_text()
+    nav = text[text.index('<p style="font-family:sans-serif">'):]
+    nav = nav[:nav.index("</p>")]
+    hrefs = nav.split('href="')[1:]
+    assert len(hrefs) == 1
+    href = hrefs[0][:hrefs[0].index('"')]
+    assert unquote(unescape(href)) == pages[1].name
+    assert not set(href) & set("<>\"' ") and nav.count("<") == 5, nav  # <p>, <b>, </b>, <a>, </a>: no other markup
+
+
+@settings(max_examples=60, deadline=None)
+@given(value=st.one_of(st.text(max_size=20), st.integers(), st.floats(allow_nan=False), st.none()))
+def test_summary_cells_never_start_a_formula_property(value):
+    from cuboidlib.cli_shapes import csv_cell
+
+    cell = csv_cell(value)
+    text = "" if value is None else str(value)
+    assert cell[:1] not in ("=", "+", "-", "@", "\t", "\r")
+    assert cell == text or cell == "'" + text

@@ -27,6 +27,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("fitting", "evaluation"),                                # the per-shape fit, the test-split scores
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
     ("release",),                                             # a trained run -> a committed network and card
+    ("cli_common",),                                          # what the commands share: errors, inputs, outputs
+    ("cli_shapes",),                                          # the command line's runs over shapes (fit, abstract)
     ("cli",),                                                 # the command-line tool
     ("__main__",),                                            # python -m cuboidlib
 )
