@@ -43,6 +43,10 @@ __all__ = ["abstract", "frame_rotation", "candidate_frames", "up_axis_scores", "
 #: the fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not.
 REFINE_LR = 0.003
 
+#: How the per-shape fit of ``abstract(shape, None)`` and ``cuboidlib fit`` chooses its number of cuboids
+#: (:class:`cuboidlib.fitting.FitConfig`'s ``count``): by the Chamfer distance, so that legs keep their own cuboids
+#: (``python benchmarks/bench_fit_count.py``); ``fit_cuboids`` itself keeps the paper's rule.
+FIT_COUNT = "chamfer"
 #: Steps of the final phase of a refinement on the two-sided distance (:func:`cuboidlib.fitting.tighten_cuboids`).
 TIGHTEN_STEPS = 150
 
@@ -318,7 +322,7 @@ def _by_network(pc, net, state, path, up, front, threshold, centroids, refine, f
 
 def _by_fitting(pc, up, front, fit_config, part_names, source, seed, progress) -> Abstraction:
     """The result without a network: the per-shape fit of :mod:`cuboidlib.fitting`."""
-    config = fit_config if fit_config is not None else FitConfig(seed=seed)
+    config = fit_config if fit_config is not None else FitConfig(seed=seed, count=FIT_COUNT)
     if len(pc) < config.num_cuboids:
         raise ValueError(f"{source or 'shape'}: has {len(pc)} points, fewer than the {config.num_cuboids} cuboids")
     rotation = frame_rotation(up, front)
@@ -326,7 +330,9 @@ def _by_fitting(pc, up, front, fit_config, part_names, source, seed, progress) -
     fit = fit_cuboids(points, normals, config, progress=progress)
     method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": config.num_cuboids,
               "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
-              "converged": bool(fit.converged[0])}
+              "converged": bool(fit.converged[0]), "count": config.count}
+    if fit.count is not None:
+        method["count_search"] = fit.count[0].to_dict()
     cuboids = fit.cuboids
     if FIT_TIGHTEN_STEPS:  # the final phase on the two-sided distance, kept only when it lowers it
         tight = tighten_cuboids(torch.as_tensor(points, dtype=cuboids.centers.dtype)[None], cuboids,
@@ -481,7 +487,8 @@ def abstract(
         threshold: existence probability above which a network's cuboid exists.
         centers: network cuboid centres: "predicted", "allocation" (centroids of the points) or "auto"
             (what the network was trained with).
-        fit_config: a :class:`~cuboidlib.fitting.FitConfig` for ``model=None`` (default: the course's).
+        fit_config: a :class:`~cuboidlib.fitting.FitConfig` for ``model=None`` (default: ``FitConfig`` with the
+            count chosen by the Chamfer distance, :data:`FIT_COUNT`).
         part_names: names of the input's part labels, for the JSON.
         device: "cpu", "cuda[:i]" or "auto".
         progress: show the fit's progress bar.

@@ -562,6 +562,9 @@ def _add_fit_command(sub) -> None:
                    help="fit R times from different starts and keep the lowest loss (default: %(default)s)")
     p.add_argument("--points", type=_positive_int, default=2048, metavar="N",
                    help="points sampled on a mesh, or kept of a larger point cloud (default: 2048)")
+    p.add_argument("--count", choices=("chamfer", "portion"), default="chamfer",
+                   help="how many cuboids are kept: chamfer (default) splits and merges the fitted cuboids while the "
+                        "Chamfer distance falls; portion keeps those holding enough of the points (the paper's rule)")
     _add_shape_options(p)
     p.set_defaults(func=_cmd_fit)
 
@@ -581,7 +584,8 @@ def _cmd_fit(args) -> int:
         for name in ("cuboids", "steps", "restarts"):
             if isinstance(getattr(args, name), _FitDefault):
                 setattr(args, name, getattr(args, name).value())
-        config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed)
+        config = FitConfig(num_cuboids=args.cuboids, steps=args.steps, restarts=args.restarts, seed=args.seed,
+                           count=args.count)
 
         def one(path: str, progress: bool):
             return abstract(path, None, n_points=args.points, seed=args.seed, fit_config=config,

@@ -52,12 +52,12 @@ class CountConfig:
         seed: seed of the point subset and the surface samples.
     """
 
-    min_gain: float = 0.05
-    merge_tolerance: float = 0.01
+    min_gain: float = 0.02
+    merge_tolerance: float = 0.005
     min_points: int = 8
     max_moves: int = 48
-    search_points: int = 1024
-    search_samples: int = 2048
+    search_points: int = 512
+    search_samples: int = 1024
     touch: float = 0.03
     seed: int = 0
 

@@ -29,6 +29,7 @@ from ._checks import (MAX_CUBOIDS, MAX_FIT_STEPS, MAX_RESTARTS, MAX_SHAPE_POINTS
 from .results import AbstractionBatch
 from .baseline import kmeans
 from .config import torch_threads
+from .counting import CountConfig, CountRecord, choose_count
 from .distance import nearest_surface_distance, point_to_cuboid_distance
 from .geometry import Cuboids, sample_cuboid_surfaces, standardize_quaternion
 from .losses import (
@@ -46,6 +47,7 @@ __all__ = ["FitConfig", "FitResult", "kmeans", "initial_cuboids", "fit_cuboids",
 
 DISTANCES = ("normal", "nearest_surface")
 INITS = ("kmeans", "random")
+COUNTS = ("portion", "chamfer")
 #: The settings of :class:`~cuboidlib.losses.LossConfig` that the fit reads.
 FIT_LOSS_FIELDS = ("lambda_compact", "compactness_average", "sigma_s", "eps_sps", "eps_ext", "distance", "allocation")
 _NETWORK_ONLY = ("chamfer_samples", "centers_from_allocation", "existence_min_points", "lambda_consistency")
@@ -73,7 +75,10 @@ class FitConfig:
             tolerance of the mean of the 10 % before.
         restarts: fit every shape this many times from different starts, in one batch, and keep the lowest
             final loss.
-        seed: seed of the initialisation and of the offsets along the normals.
+        seed: seed of the initialisation and of the offsets along the normals (and of the count's search).
+        count: how many cuboids exist at the end. "portion" (the paper's rule, Sec. 3.4.3): those holding more
+            than eps_ext of the points. "chamfer": from there, split and merge cuboids by the Chamfer distance
+            (:func:`cuboidlib.counting.choose_count`), so that thin parts such as legs keep cuboids of their own.
         loss: a :class:`~cuboidlib.losses.LossConfig` or its dict. The fit reads lambda_compact,
             compactness_average (default True here: Eq. (6) / M^2), sigma_s, eps_sps, eps_ext, distance
             ("normal" or "nearest_surface") and allocation ("segmentation", a free softmax W, or
@@ -91,6 +96,7 @@ class FitConfig:
     tol: float = 0.02
     restarts: int = 1
     seed: int = 0
+    count: str = "portion"
     loss: LossConfig = field(default_factory=lambda: LossConfig(compactness_average=True))
 
     def __post_init__(self) -> None:
@@ -105,6 +111,8 @@ class FitConfig:
         if unused:
             raise ValueError(f"FitConfig.loss sets {unused}, which only training a network uses; the fit "
                              f"reads {FIT_LOSS_FIELDS}")
+        if self.count not in COUNTS:
+            raise ValueError(f"count must be one of {COUNTS}, got {self.count!r}")
         if self.init not in INITS:
             raise ValueError(f"init must be one of {INITS}, got {self.init!r}")
         for name in ("num_cuboids", "restarts", "seed"):
@@ -154,6 +162,8 @@ class FitResult(AbstractionBatch):
         history: per-step terms averaged over the batch (of the kept restarts), lists of floats under
             "total", "reconstruction", "compactness" and "existing" (mean count of w_m > eps_ext).
         converged: (B,) bool, see ``FitConfig.tol``.
+        count: with ``FitConfig.count == "chamfer"``, one :class:`~cuboidlib.counting.CountRecord` per shape (what
+            the count's search did), else None.
         final_loss: (B,) total loss of the returned cuboids and W, without offsets along the normals, in
             the fit's coordinates (normalised ones with ``config.normalize``).
         elapsed_s: wall-clock seconds.
@@ -167,6 +177,7 @@ class FitResult(AbstractionBatch):
     final_loss: torch.Tensor
     elapsed_s: float
     config: FitConfig = field(repr=False)
+    count: list[CountRecord] | None = None
 
     @property
     def exists(self) -> torch.Tensor:
@@ -323,6 +334,9 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
     pick = {key: value[best] for key, value in run.items() if key != "records"}
     records = {key: value[:, best.cpu()] for key, value in run["records"].items()}
 
+    counts = None
+    if config.count == "chamfer" and start is None:
+        counts = _choose_counts(p, pick, config)
     history = {key: value.mean(dim=1).tolist() for key, value in records.items()}
     converged = _converged(records["total"], config.tol)
     if progress and not bool(converged.all()):
@@ -346,7 +360,26 @@ def fit_cuboids(points, normals, config: FitConfig = FitConfig(), progress: bool
         final_loss=pick["final_loss"],
         elapsed_s=time.perf_counter() - start_time,
         config=config,
+        count=counts,
     )
+
+
+def _choose_counts(p: torch.Tensor, pick: dict, config: FitConfig) -> list[CountRecord]:
+    """Split and merge each shape's fitted cuboids by the Chamfer distance, in place in ``pick`` (its cuboids,
+    existence, W as the one-hot of the new segmentation, portions); the fit's coordinates."""
+    records = []
+    count_config = CountConfig(seed=config.seed)
+    for i in range(p.shape[0]):
+        exists = pick["exists"][i]
+        labels = pick["W"][i].masked_fill(~exists[None, :], -1.0).argmax(dim=-1)
+        with torch.no_grad():
+            c, q, s, e, labels, record = choose_count(p[i], pick["centers"][i], pick["quaternions"][i],
+                                                      pick["half_sizes"][i], exists, labels, count_config)
+        pick["centers"][i], pick["quaternions"][i], pick["half_sizes"][i], pick["exists"][i] = c, q, s, e
+        pick["W"][i] = torch.nn.functional.one_hot(labels, exists.shape[0]).to(pick["W"].dtype)
+        pick["portions"][i] = pick["W"][i].mean(dim=0)
+        records.append(record)
+    return records
 
 
 def _check_start(start: AbstractionBatch, b: int, n: int, config: FitConfig) -> None:
