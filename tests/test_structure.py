@@ -17,7 +17,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "cuboidlib"
 
 #: cuboidlib's modules from the bottom up. Each line is a layer; a module imports only from the lines above it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("__init__", "_checks", "config", "files", "kernels"),    # plumbing: version, checks, configs, files, C++
+    ("__init__", "files"),                                    # version, reading and writing files
+    ("_checks", "config", "kernels"),                         # plumbing: checks, configs, C++
     ("neighbors", "geometry", "normalization", "solids"),     # kNN, cuboid geometry, the unit frame, solids
     ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
