@@ -16,7 +16,8 @@ import numpy as np
 
 from .files import read_file_bytes
 
-__all__ = ["NUMBER_TOKEN", "NumberRows", "read_number_rows", "after_line_end", "check_row_counts", "concat_ranges",
+__all__ = ["NUMBER_TOKEN", "LINE_END", "NumberRows", "read_number_rows", "after_line_end", "strip_comments",
+           "check_row_counts", "concat_ranges",
            "are_whole", "PlyElement", "parse_ply_header", "read_ply", "ply_vertex_table", "LABEL_NAMES", "as_labels"]
 
 # ------------------------------------------------------------------------------------- numeric text
@@ -31,7 +32,8 @@ _BLOCK = 1 << 20
 #: A number as numpy's text parser reads it (used to name the first value it could not read).
 NUMBER_TOKEN = re.compile(rb"[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|inf(inity)?|nan)", re.IGNORECASE)
 
-_LINE_END = re.compile(rb"\r\n|\r|\n")
+#: A line end: LF, CRLF or CR alone.
+LINE_END = re.compile(rb"\r\n|\r|\n")
 
 
 @dataclass
@@ -75,14 +77,14 @@ def after_line_end(data: bytes, stop: int) -> int:
 
 def _bad_number(path, block: bytes, first_line: int, what: str) -> ValueError:
     """The error for the first value of ``block`` that is not a number."""
-    for k, line in enumerate(_LINE_END.split(block)):
+    for k, line in enumerate(LINE_END.split(block)):
         for token in line.split():
             if not NUMBER_TOKEN.fullmatch(token):
                 shown = token[:40].decode("utf-8", errors="replace")
                 return ValueError(f"{path}: non-numeric value {shown!r} on line {first_line + k} of the {what}; "
                                   "expected numbers separated by spaces")
     return ValueError(f"{path}: non-numeric value in the {what} (lines {first_line} to "
-                      f"{first_line + len(_LINE_END.findall(block))})")
+                      f"{first_line + len(LINE_END.findall(block))})")
 
 
 def _parse_block(path, block: bytes, first_line: int, what: str) -> tuple[np.ndarray, np.ndarray, int]:
@@ -149,6 +151,18 @@ def read_number_rows(path, data: bytes, start: int = 0, first_line: int = 1, wha
     widths = per_line[rows]
     all_values = np.concatenate(values) if values else np.zeros(0)
     return NumberRows(all_values, widths, np.cumsum(widths) - widths, rows + first_line, tail == 0)
+
+
+def strip_comments(data: bytes) -> bytes:
+    """Text without its comments, which run from '#' to the line end; the line ends stay, so line numbers do too.
+
+    Args:
+        data: text.
+
+    Returns:
+        The text without comments (``data`` itself when it holds no '#').
+    """
+    return re.sub(rb"#[^\r\n]*", b"", data) if b"#" in data else data
 
 
 def _plural(name: str, count: int) -> str:

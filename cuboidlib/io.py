@@ -21,7 +21,8 @@ import numpy as np
 
 from ._checks import MAX_SHAPE_POINTS, check_size
 from .files import atomic_path, check_not_packed, read_file_bytes, read_json
-from .file_tables import LABEL_NAMES, as_labels, parse_ply_header, ply_vertex_table, read_number_rows, read_ply
+from .file_tables import (LABEL_NAMES, as_labels, parse_ply_header, ply_vertex_table, read_number_rows, read_ply,
+                          strip_comments)
 from .mesh_files import load_triangle_mesh
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
@@ -350,9 +351,7 @@ def _pts_rows(path: Path, rows) -> np.ndarray:
 
 
 def _read_text(path: Path, normals: str) -> PointCloud:
-    data = read_file_bytes(path, f"a {path.suffix} point cloud")
-    if b"#" in data:  # comments run to the line end; the line ends stay, so line numbers do too
-        data = re.sub(rb"#[^\r\n]*", b"", data)
+    data = strip_comments(read_file_bytes(path, f"a {path.suffix} point cloud"))
     rows = read_number_rows(path, _decimal_marks(path, data), what="rows")
     if not len(rows):
         raise ValueError(f"{path}: contains no points")

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .file_tables import (LABEL_NAMES, NUMBER_TOKEN, after_line_end, are_whole, as_labels, check_row_counts,
-                          concat_ranges, ply_vertex_table, read_number_rows, read_ply)
+from .file_tables import (LABEL_NAMES, LINE_END, NUMBER_TOKEN, after_line_end, are_whole, as_labels,
+                          check_row_counts, concat_ranges, ply_vertex_table, read_number_rows, read_ply, strip_comments)
 from .files import parse_json, read_file_bytes
 
 __all__ = ["POLYGON_MESH_SUFFIXES", "PolygonMesh", "read_polygon_mesh", "triangulate_polygons", "load_triangle_mesh"]
@@ -92,18 +92,18 @@ _OBJ_FREE_FORM = frozenset(("vp", "cstype", "deg", "bmat", "step", "curv", "curv
 _INDEX = re.compile(r"[+-]?\d+")
 
 
-def _obj_statements(path, text: str):
+def _obj_statements(path, data: bytes):
     """``(line number, words)`` of every OBJ statement: comments dropped, continued lines ('\\' at the end) joined."""
-    lines = re.split(r"\r\n|\r|\n", text)
+    lines = LINE_END.split(data)
     k = 0
     while k < len(lines):
-        number, line = k + 1, lines[k].split("#", 1)[0].rstrip()
+        number, line = k + 1, lines[k].decode("latin-1").split("#", 1)[0].rstrip()
         k += 1
         while line.endswith("\\"):
             if k == len(lines):
                 raise ValueError(f"{path}: line {number} ends with a line continuation ('\\') but no line follows; "
                                  "the file is cut off")
-            line = line[:-1] + " " + lines[k].split("#", 1)[0].rstrip()
+            line = line[:-1] + " " + lines[k].decode("latin-1").split("#", 1)[0].rstrip()
             k += 1
         words = line.split()
         if words:
@@ -161,10 +161,9 @@ def _obj_vertices(path, rows: list[str], numbers: list[int]) -> np.ndarray:
 
 
 def _obj_mesh(path) -> PolygonMesh:
-    text = read_file_bytes(path, "an OBJ file").decode("latin-1")
     counts = {"v": 0, "vt": 0, "vn": 0}
     rows, row_lines, sizes, flat, ahead = [], [], [], [], []
-    for number, words in _obj_statements(path, text):
+    for number, words in _obj_statements(path, read_file_bytes(path, "an OBJ file")):
         key = words[0]
         if key == "v":
             if len(words) - 1 not in (3, 4, 6, 7):
@@ -231,9 +230,7 @@ def _off_header(path, data: bytes) -> tuple[bytes, list[bytes], int, int]:
 
 
 def _off_mesh(path) -> PolygonMesh:
-    data = read_file_bytes(path, "an OFF file")
-    if b"#" in data:  # comments run to the line end; the line ends stay, so line numbers do too
-        data = re.sub(rb"#[^\r\n]*", b"", data)
+    data = strip_comments(read_file_bytes(path, "an OFF file"))
     keyword, counts, body, header_lines = _off_header(path, data)
     nv, nf = int(counts[0]), int(counts[1])
     rows = read_number_rows(path, data, body, header_lines + 1, "OFF body")
@@ -263,6 +260,10 @@ def _off_mesh(path) -> PolygonMesh:
 
 #: How far (relative to its size) a vertex of a non-convex polygon may lie from the polygon's plane.
 _PLANAR = 1e-2
+
+#: The most vertices of a non-convex polygon that is ear-clipped (the check that it is simple takes memory
+#: quadratic in them).
+_MAX_EAR_CLIPPED = 1000
 
 
 def _cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -330,6 +331,9 @@ def _ear_clip(xy: np.ndarray, eps: float) -> list[tuple[int, int, int]]:
 def _triangulate_one(corners: np.ndarray, source: str, face: int) -> np.ndarray:
     """Triangles (indices into ``corners``) of a polygon that is not convex, or refused with the reason."""
     k = len(corners)
+    if k > _MAX_EAR_CLIPPED:
+        raise ValueError(f"{source}: face {face} has {k} vertices and is not convex; cuboidlib triangulates such faces "
+                         f"of at most {_MAX_EAR_CLIPPED} vertices. Triangulate it in your modeller")
     c = corners - corners.mean(axis=0)
     size = float(np.linalg.norm(np.ptp(c, axis=0)))
     normal = np.cross(c, np.roll(c, -1, axis=0)).sum(axis=0)

@@ -434,7 +434,7 @@ def test_an_obj_file_cut_anywhere_is_refused_or_read_as_the_prefix_it_is_propert
 @READERS
 @given(seed=st.integers(0, 2**16), eol=EOLS, data=st.data(),
        fmt=st.sampled_from(["off", "ascii", "binary_little_endian", "binary_big_endian", "ascii cloud",
-                            "binary cloud", "pts", "stl", "glb"]))
+                            "binary cloud", "pts", "npy", "stl", "glb"]))
 def test_a_file_whose_header_counts_its_content_is_refused_when_cut_anywhere_property(tmp_path, seed, eol, data,
                                                                                         fmt):
     rng = np.random.default_rng(seed)
@@ -443,6 +443,12 @@ def test_a_file_whose_header_counts_its_content_is_refused_when_cut_anywhere_pro
         full, name = _off_bytes(vertices, polygons, eol), "m.off"
     elif fmt in ("stl", "glb"):
         full, name = trimesh.creation.box().export(file_type=fmt), f"m.{fmt}"
+    elif fmt == "npy":
+        import io as bytes_io
+
+        buffer = bytes_io.BytesIO()
+        np.save(buffer, vertices)
+        full, name = buffer.getvalue(), "m.npy"
     elif fmt == "pts":
         full, name = (f"{len(vertices)}{eol}" + "".join(f"{x!r} {y!r} {z!r} 7 1 2 3{eol}" for x, y, z in
                                                         vertices.tolist())).encode(), "m.pts"
@@ -450,7 +456,7 @@ def test_a_file_whose_header_counts_its_content_is_refused_when_cut_anywhere_pro
         full, name = _ply_bytes(vertices, None if "cloud" in fmt else polygons, fmt.split()[0] if fmt != "binary cloud"
                                 else "binary_little_endian", eol=eol), "m.ply"
     (tmp_path / name).write_bytes(full)
-    read = (io.read_point_cloud if fmt in ("pts", "ascii cloud", "binary cloud") else
+    read = (io.read_point_cloud if fmt in ("pts", "npy", "ascii cloud", "binary cloud") else
             (lambda p: io.load_mesh_as_point_cloud(p, 50)) if fmt in ("stl", "glb") else read_polygon_mesh)
     whole = read(tmp_path / name)
     cut = data.draw(st.integers(0, len(full) - 1), label="cut")
@@ -581,6 +587,10 @@ def test_polygons_are_triangulated_inside_their_outline_property(seed, k, revers
     vertices, back = _in_plane(rng, polygon)
     triangles, owner = triangulate_polygons(vertices, np.array([k]), np.arange(k))
     assert (owner == 0).all() and len(triangles) <= k - 2
+    corners = vertices[triangles]
+    newell = np.cross(vertices, np.roll(vertices, -1, axis=0)).sum(axis=0)
+    facing = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) @ newell
+    assert (facing > 0).all(), "every triangle keeps the polygon's winding"
     flat = back(vertices)[:, :2]
     tri = flat[triangles]
     area = np.abs(_cross2d(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])).sum() / 2
@@ -626,6 +636,9 @@ def test_polygons_that_cross_themselves_or_bend_out_of_plane_are_refused(tmp_pat
                              (bent, "is neither convex nor planar")):
         with pytest.raises(ValueError, match=f"m.obj: face 0 \\({len(corners)} vertices\\) {message}"):
             triangulate_polygons(corners, np.array([len(corners)]), np.arange(len(corners)), "m.obj")
+    big = np.c_[_star_polygon(np.random.default_rng(0), 1001), np.zeros(1001)]
+    with pytest.raises(ValueError, match="face 0 has 1001 vertices and is not convex; .* at most 1000 vertices"):
+        triangulate_polygons(big, np.array([1001]), np.arange(1001))
     saddle = np.array([[0, 0, 0], [1, 0, 0.2], [1, 1, 0], [0, 1, 0.2]])  # convex seen from above: any fan will do
     assert len(triangulate_polygons(saddle, np.array([4]), np.arange(4))[0]) == 2
 
