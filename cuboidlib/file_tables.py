@@ -9,6 +9,7 @@ lines, one pass, so that reading needs memory for the numbers and not for Python
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,9 +17,9 @@ import numpy as np
 
 from .files import read_file_bytes
 
-__all__ = ["NUMBER_TOKEN", "LINE_END", "NumberRows", "read_number_rows", "after_line_end", "strip_comments",
-           "check_row_counts", "concat_ranges",
-           "are_whole", "PlyElement", "parse_ply_header", "read_ply", "ply_vertex_table", "LABEL_NAMES", "as_labels"]
+__all__ = ["NUMBER_TOKEN", "LINE_END", "NumberRows", "parse_numbers", "read_number_rows", "after_line_end",
+           "strip_comments", "check_row_counts", "concat_ranges", "are_whole", "PlyElement", "parse_ply_header",
+           "read_ply", "ply_vertex_table", "LABEL_NAMES", "as_labels"]
 
 # ------------------------------------------------------------------------------------- numeric text
 
@@ -87,6 +88,23 @@ def _bad_number(path, block: bytes, first_line: int, what: str) -> ValueError:
                       f"{first_line + len(LINE_END.findall(block))})")
 
 
+def parse_numbers(text: bytes) -> np.ndarray | None:
+    """The numbers of a text of numbers separated by whitespace, parsed by numpy's C parser.
+
+    Args:
+        text: ASCII text holding at least one number.
+
+    Returns:
+        (K,) float64, or None if a value is not a number.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # numpy < 2 warns and stops early where numpy 2 raises
+        try:
+            return np.fromstring(text, dtype=np.float64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+
+
 def _parse_block(path, block: bytes, first_line: int, what: str) -> tuple[np.ndarray, np.ndarray, int]:
     """Numbers and numbers per line of ``block``, which ends with a line end unless it ends the file.
 
@@ -109,11 +127,8 @@ def _parse_block(path, block: bytes, first_line: int, what: str) -> tuple[np.nda
     tail = len(starts) - (int(before[-1]) if len(before) else 0)
     if not len(starts):  # numpy reads text of spaces alone as [-1.0]
         return np.zeros(0), per_line, tail
-    try:
-        values = np.fromstring(block, dtype=np.float64, sep=" ")
-    except ValueError:
-        raise _bad_number(path, block, first_line, what) from None
-    if len(values) != len(starts):
+    values = parse_numbers(block)
+    if values is None or len(values) != len(starts):
         raise _bad_number(path, block, first_line, what)
     return values, per_line, tail
 

@@ -4,7 +4,8 @@ Every format is read into one :class:`PointCloud` through one validation, so a m
 fails with the same kind of message, naming the file (``FileNotFoundError`` if missing, else ``ValueError``).
 :func:`load_point_cloud` is the entry point of the dataset and the command line: it reads, validates,
 subsamples, estimates missing normals and normalises (:mod:`cuboidlib.normalization`), keeping
-``(center, scale)`` so results can be written back in the user's coordinates.
+``(center, scale)`` so results can be written back in the user's coordinates. The tables of text and PLY files
+are parsed by :mod:`cuboidlib.file_tables`, meshes read by :mod:`cuboidlib.mesh_files`.
 """
 
 from __future__ import annotations
@@ -392,9 +393,13 @@ def read_point_cloud(path: str | os.PathLike, normals: str = "auto") -> PointClo
 
     Args:
         path: by suffix, ``.ply`` (ASCII or binary; vertex properties x, y, z, optional nx, ny, nz and
-            label), ``.txt``/``.pts``/``.xyz`` (whitespace or comma separated rows ``x y z [nx ny nz
-            [label]]``, the ShapeNet-part "normal" layout) or ``.npy`` ((N, 3), (N, 6) as the authors'
-            released data, or (N, 7)).
+            label), ``.txt``/``.xyz`` (rows ``x y z [nx ny nz [label]]``, the ShapeNet-part "normal" layout;
+            the label column is read only when columns 4-6 are unit normals, or ``normals="file"``), ``.pts``
+            (a scan: rows ``x y z``, ``x y z intensity``, ``x y z`` + 3 columns as in ``.txt``, or ``x y z
+            intensity r g b``, each block of rows optionally after a line that counts them) or ``.npy``
+            ((N, 3), (N, 6) as the authors' released data, or (N, 7)). Text values are separated by blanks,
+            commas or semicolons, with decimal points or (where nothing else can be meant) decimal commas;
+            '#' starts a comment.
         normals: what columns 4-6 of a text or ``.npy`` file are: ``"auto"`` (normals when every row is a
             unit vector; otherwise, e.g. RGB colours, they are dropped with a warning that says what they
             hold), ``"file"`` (normals, whatever they hold) or ``"ignore"`` (dropped). A PLY file names its
@@ -407,8 +412,8 @@ def read_point_cloud(path: str | os.PathLike, normals: str = "auto") -> PointClo
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unknown suffix, unreadable or malformed content, no points, NaN/inf values,
-            all points identical, zero normals.
+        ValueError: unknown suffix, unreadable, malformed, truncated, compressed or ambiguous content, no
+            points, NaN/inf values, all points identical, zero normals.
     """
     path = _check_file(path)
     if normals not in ("auto", "file", "ignore"):

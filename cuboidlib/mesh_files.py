@@ -16,7 +16,8 @@ import numpy as np
 import trimesh
 
 from .file_tables import (LABEL_NAMES, LINE_END, NUMBER_TOKEN, after_line_end, are_whole, as_labels,
-                          check_row_counts, concat_ranges, ply_vertex_table, read_number_rows, read_ply, strip_comments)
+                          check_row_counts, concat_ranges, parse_numbers, ply_vertex_table, read_number_rows, read_ply,
+                          strip_comments)
 from .files import parse_json, read_file_bytes
 
 __all__ = ["POLYGON_MESH_SUFFIXES", "PolygonMesh", "read_polygon_mesh", "triangulate_polygons", "load_triangle_mesh"]
@@ -56,7 +57,8 @@ def _check_polygons(path, mesh: PolygonMesh) -> PolygonMesh:
     if mesh.indices.size and not are_whole(mesh.indices.astype(np.float64), 0, v - 1):
         wrong = mesh.indices[(mesh.indices != np.round(mesh.indices)) | (mesh.indices < 0) | (mesh.indices >= v)]
         bad = wrong[0].item()
-        raise ValueError(f"{path}: a face refers to vertex {bad:g}, but the mesh has {v} vertices (indices 0 to {v - 1})")
+        raise ValueError(f"{path}: a face refers to vertex {bad:g}, but the mesh has {v} vertices "
+                         f"(indices 0 to {v - 1})")
     mesh.indices = mesh.indices.astype(np.int64)
     return mesh
 
@@ -146,11 +148,7 @@ def _obj_face(path, number: int, words: list[str], counts: dict) -> list[int]:
 
 def _obj_vertices(path, rows: list[str], numbers: list[int]) -> np.ndarray:
     """The (V, 3) float64 coordinates of the OBJ vertex rows (each 'x y z'), parsed at once."""
-    text = " ".join(rows).encode("ascii", errors="replace")
-    try:
-        values = np.fromstring(text, dtype=np.float64, sep=" ") if rows else np.zeros(0)
-    except ValueError:
-        values = None
+    values = parse_numbers(" ".join(rows).encode("ascii", errors="replace")) if rows else np.zeros(0)
     if values is None or len(values) != 3 * len(rows):
         for row, number in zip(rows, numbers):
             bad = [t for t in row.split() if not NUMBER_TOKEN.fullmatch(t.encode("ascii", errors="replace"))]

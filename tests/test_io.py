@@ -473,7 +473,8 @@ def test_a_file_whose_header_counts_its_content_is_refused_when_cut_anywhere_pro
 
 def test_a_mesh_cut_inside_its_face_list_is_refused_naming_the_counts(tmp_path):
     mesh = trimesh.load(DATA_SAMPLES / "meshes" / "chair_0.ply", process=False)
-    for suffix, text in ((".ply", mesh.export(file_type="ply", encoding="ascii")), (".off", mesh.export(file_type="off"))):
+    exports = {".ply": mesh.export(file_type="ply", encoding="ascii"), ".off": mesh.export(file_type="off")}
+    for suffix, text in exports.items():
         lines = (text if isinstance(text, bytes) else text.encode()).split(b"\n")
         start = lines.index(b"end_header") + 1 if suffix == ".ply" else 2
         (tmp_path / f"cut{suffix}").write_bytes(b"\n".join(lines[:start + 1082 + 412]) + b"\n")
