@@ -224,6 +224,8 @@ def _train_config_from_args(args):
             value = json.loads(raw)
         except json.JSONDecodeError:
             value = raw  # a bare string, e.g. --set loss.distance=chamfer
+        except RecursionError:
+            raise UserError(f"--set {key}: the value is nested too deeply to read") from None
         section, dot, name = key.partition(".")
         if dot and section in ("model", "loss"):
             data[section] = {**data[section], name: value}

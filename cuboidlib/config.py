@@ -14,13 +14,14 @@ Example::
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from .files import read_json
 
 __all__ = ["ConfigDict", "read_config_file", "derive_seed", "resolve_device", "torch_threads"]
 
@@ -69,12 +70,7 @@ def read_config_file(path: str | os.PathLike) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such config file")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    data = read_json(path)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: a config file must hold a JSON object, got {type(data).__name__}")
     return data

@@ -61,7 +61,8 @@ import numpy as np
 import torch
 import trimesh
 
-from .files import LOCK_FILE, MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, check_outputs_spare_inputs, write_text_atomic
+from .files import (LOCK_FILE, MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, check_outputs_spare_inputs,
+                    read_json, write_text_atomic)
 from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
 from .metrics import ChamferConvention
 from .io import read_point_cloud
@@ -447,10 +448,7 @@ def read_cuboids_json(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    doc = read_json(path)
     cuboids, meta = cuboids_from_dict(doc, str(path), dtype)
     if coordinates is not None and coordinates != meta["coordinates"]:
         if coordinates not in COORDINATES:
@@ -647,8 +645,8 @@ def read_manifest(folder: str | os.PathLike) -> dict | None:
     """
     path = Path(folder) / MANIFEST
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        doc = read_json(path)
+    except (OSError, ValueError):
         return None
     files = doc.get("files") if isinstance(doc, dict) else None
     if not isinstance(files, list) or not all(isinstance(f, str) and "/" not in f and f not in ("", ".", "..")
@@ -725,8 +723,8 @@ def _result_jsons(path: Path) -> list[Path]:
     found = []
     for candidate in candidates:
         try:
-            doc = json.loads(candidate.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+            doc = read_json(candidate)
+        except (OSError, ValueError):
             continue
         if isinstance(doc, dict) and doc.get("format") == JSON_FORMAT:
             found.append(candidate)
@@ -753,8 +751,8 @@ def cuboid_part_names(meta: dict) -> list[str | None] | None:
 def _points_file(json_path: Path) -> str | None:
     """The ``points_file`` a result JSON names (a file name beside it), or None."""
     try:
-        name = json.loads(json_path.read_text(encoding="utf-8")).get("points_file")
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        name = read_json(json_path).get("points_file")
+    except (OSError, ValueError, AttributeError):
         return None
     return name if isinstance(name, str) and name and Path(name).name == name else None
 

@@ -1,5 +1,6 @@
 """Writing result files: atomically (a result is complete under its name or absent, never half-written), and
-in which mesh formats. It imports no torch, so the command line uses it while it parses its arguments.
+in which mesh formats; reading the bytes and the JSON of a user's file, with compressed content and too deep
+nesting refused by name. It imports no torch, so the command line uses it while it parses its arguments.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["MESH_FORMATS", "MANIFEST", "RESULT_FORMAT", "atomic_path", "write_text_atomic",
-           "check_outputs_spare_inputs", "check_distinct_outputs", "result_files_in", "LOCK_FILE", "output_lock"]
+           "check_outputs_spare_inputs", "check_distinct_outputs", "result_files_in", "LOCK_FILE", "output_lock",
+           "check_not_packed", "read_file_bytes", "parse_json", "read_json"]
 
 #: The file in which a run records the files it wrote in its output folder (:func:`cuboidlib.export.write_manifest`).
 MANIFEST = "cuboidlib-manifest.json"
@@ -70,6 +72,95 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+#: The first bytes of compressed and archive formats, what they are, and what to do instead.
+_PACKED = (
+    (b"\x1f\x8b", "gzip-compressed", "decompress it first (gunzip)"),
+    (b"PK\x03\x04", "a zip archive (a NumPy .npz file is one)",
+     "extract it first (for an .npz file: np.load it and np.save the array you want as .npy)"),
+    (b"PK\x05\x06", "an empty zip archive", "extract it first"),
+    (b"BZh", "bzip2-compressed", "decompress it first (bunzip2)"),
+    (b"\xfd7zXZ\x00", "xz-compressed", "decompress it first (unxz)"),
+    (b"(\xb5/\xfd", "zstd-compressed", "decompress it first (unzstd)"),
+    (b"7z\xbc\xaf\x27\x1c", "a 7-Zip archive", "extract it first"),
+)
+
+#: The byte order mark some editors put at the start of a UTF-8 text file.
+UTF8_BOM = b"\xef\xbb\xbf"
+
+
+def check_not_packed(path: str | os.PathLike, head: bytes, expected: str) -> None:
+    """Refuse a file whose first bytes are those of a compressed file or an archive.
+
+    Args:
+        path: the file, for the message.
+        head: its first bytes (8 are enough).
+        expected: what the file should hold, e.g. ``"a PLY file"``.
+
+    Raises:
+        ValueError: naming the file, what it holds and what to do.
+    """
+    for magic, what, remedy in _PACKED:
+        if head.startswith(magic):
+            raise ValueError(f"{path}: is {what}, not {expected}; {remedy}")
+
+
+def read_file_bytes(path: str | os.PathLike, expected: str) -> bytes:
+    """The content of a user's file, with a leading UTF-8 byte order mark dropped.
+
+    Args:
+        path: an existing file.
+        expected: what it should hold, for messages (``"a PLY file"``).
+
+    Returns:
+        Its bytes.
+
+    Raises:
+        ValueError: the file is compressed or an archive (:func:`check_not_packed`).
+    """
+    data = Path(path).read_bytes()
+    check_not_packed(path, data[:8], expected)
+    return data[len(UTF8_BOM):] if data.startswith(UTF8_BOM) else data
+
+
+def parse_json(text: str | bytes, source: str):
+    """Parse JSON text, every failure a ``ValueError`` naming ``source``.
+
+    Args:
+        text: the JSON text, or its UTF-8 bytes (a leading byte order mark is dropped).
+        source: names the text in messages (a file name).
+
+    Returns:
+        The parsed value.
+
+    Raises:
+        ValueError: not UTF-8, not valid JSON, or nested too deeply for Python's parser.
+    """
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{source}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
+    try:
+        return json.loads(text.removeprefix("\ufeff"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{source}: not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise ValueError(f"{source}: the JSON is nested too deeply to read (lists or objects inside one another "
+                         "about a thousand levels deep or more)") from None
+
+
+def read_json(path: str | os.PathLike):
+    """Read a JSON file; a missing file raises ``FileNotFoundError``, anything else unreadable ``ValueError``.
+
+    Args:
+        path: the file.
+
+    Returns:
+        The parsed value.
+    """
+    return parse_json(read_file_bytes(path, "a JSON file"), str(path))
 
 
 def _real(path: str | os.PathLike) -> str:
@@ -143,7 +234,7 @@ def result_files_in(folder: str | os.PathLike) -> set[str]:
     folder = Path(folder)
     names: set[str] = set()
     try:
-        doc = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+        doc = read_json(folder / MANIFEST)
         listed = doc.get("files") if isinstance(doc, dict) else None
         names.update(f for f in listed or [] if isinstance(f, str))
         names.add(MANIFEST)
@@ -151,7 +242,7 @@ def result_files_in(folder: str | os.PathLike) -> set[str]:
         pass
     for result in folder.glob("*.json"):
         try:
-            doc = json.loads(result.read_text(encoding="utf-8"))
+            doc = read_json(result)
         except (OSError, ValueError):
             continue
         if isinstance(doc, dict) and doc.get("format") == RESULT_FORMAT:

@@ -4,13 +4,13 @@ Every format is read into one :class:`PointCloud` through one validation, so a m
 fails with the same kind of message, naming the file (``FileNotFoundError`` if missing, else ``ValueError``).
 :func:`load_point_cloud` is the entry point of the dataset and the command line: it reads, validates,
 subsamples, estimates missing normals and normalises (:mod:`cuboidlib.normalization`), keeping
-``(center, scale)`` so results can be written back in the user's coordinates.
+``(center, scale)`` so results can be written back in the user's coordinates. The tables of text and PLY files
+are parsed by :mod:`cuboidlib.file_tables`, meshes read by :mod:`cuboidlib.mesh_files`.
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import os
 import re
 import sys
@@ -19,10 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from ._checks import MAX_SHAPE_POINTS, check_size
-from .files import atomic_path
+from .files import atomic_path, check_not_packed, read_file_bytes, read_json
+from .file_tables import (LABEL_NAMES, as_labels, parse_ply_header, ply_vertex_table, read_number_rows, read_ply,
+                          strip_comments)
+from .mesh_files import load_triangle_mesh
 from .normalization import normalize
 from .normals import estimate_normals, orient_normals
 from .shapes import CATEGORIES, PART_NAMES, make_shape, plot_shapes
@@ -141,140 +143,27 @@ def _unit(normals: np.ndarray) -> np.ndarray:
     return (normals / np.linalg.norm(normals, axis=1, keepdims=True)).astype(np.float32)
 
 
-def _as_labels(values: np.ndarray, source: str, limit: int = 2**62) -> np.ndarray:
-    """Labels as int64; whole numbers with |label| < ``limit``, else a ValueError naming ``source``."""
-    values = np.asarray(values)
-    if values.dtype.kind not in "fiub":
-        raise ValueError(f"{source}: labels must be whole numbers, got dtype {values.dtype}")
-    if values.dtype.kind == "f":
-        if not np.isfinite(values).all() or (values != np.round(values)).any():
-            raise ValueError(f"{source}: labels must be whole numbers")
-    if values.size and (np.abs(values.astype(np.float64)).max() >= limit):
-        raise ValueError(f"{source}: labels must lie in ({-limit}, {limit}); got {values.max()} / {values.min()}")
-    return values.astype(np.int64)
-
-
 # Largest magnitude a float32 coordinate (PLY, .npy) can hold.
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 # ----------------------------------------------------------------------------------------- PLY
 
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
 _NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
-_LABEL_NAMES = ("label", "scalar_label", "part", "class")
-
-
-def _parse_ply_header(path: Path, data: bytes):
-    if not data.startswith(b"ply"):
-        raise ValueError(f"{path}: not a PLY file (it does not start with 'ply')")
-    end = data.find(b"end_header")
-    if end < 0:
-        raise ValueError(f"{path}: PLY header has no 'end_header' line")
-    body = data.index(b"\n", end) + 1
-    fmt, elements = None, []
-    expected = {"format": 3, "element": 3, "property": 3}  # tokens of each header line (list: 5)
-    for line in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
-        tok = line.split()
-        if not tok or tok[0] in ("comment", "obj_info"):
-            continue
-        if tok[0] not in expected:
-            raise ValueError(f"{path}: unknown PLY header line {line.strip()!r}")
-        wanted = 5 if tok[:2] == ["property", "list"] else expected[tok[0]]
-        if len(tok) != wanted:
-            raise ValueError(f"{path}: malformed PLY header line {line.strip()!r} (expected {wanted} words)")
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "element":
-            if not tok[2].isdigit():
-                raise ValueError(f"{path}: PLY element {tok[1]!r} has count {tok[2]!r}; expected a whole number >= 0")
-            elements.append({"name": tok[1], "count": int(tok[2]), "props": []})
-        elif tok[0] == "property":
-            if not elements:
-                raise ValueError(f"{path}: PLY property before any element")
-            if tok[1] == "list":
-                elements[-1]["props"].append((tok[4], "list", tok[2], tok[3]))
-            else:
-                if tok[1] not in _PLY_TYPES:
-                    raise ValueError(f"{path}: unknown PLY property type {tok[1]!r}")
-                elements[-1]["props"].append((tok[2], _PLY_TYPES[tok[1]]))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
-    return fmt, elements, body
-
-
-def _read_ply_vertices(path: Path) -> tuple[dict, int]:
-    """The vertex properties of a PLY file as ``{name: (N,) array}`` and its number of faces."""
-    data = path.read_bytes()
-    fmt, elements, body = _parse_ply_header(path, data)
-    n_faces = sum(e["count"] for e in elements if e["name"] == "face")
-    names = [e["name"] for e in elements]
-    if "vertex" not in names:
-        raise ValueError(f"{path}: PLY file has no 'vertex' element")
-    vertex = elements[names.index("vertex")]
-    before = elements[: names.index("vertex")]
-    if any(p[1] == "list" for p in vertex["props"]):
-        raise ValueError(f"{path}: PLY vertex element with list properties is not supported")
-    if fmt == "ascii":
-        lines = data[body:].decode("ascii", errors="replace").splitlines()
-        start = sum(e["count"] for e in before)
-        rows = lines[start:start + vertex["count"]]
-        if len(rows) < vertex["count"]:
-            raise ValueError(f"{path}: PLY file is truncated ({len(rows)} of {vertex['count']} vertex rows)")
-        table = _ascii_rows(rows, len(vertex["props"]), path, first_line=data[:body].count(b"\n") + start + 1)
-        return {p[0]: table[:, i] for i, p in enumerate(vertex["props"])}, n_faces
-    if any(p[1] == "list" for e in before for p in e["props"]):
-        raise ValueError(f"{path}: binary PLY with list elements before the vertices is not supported")
-    order = "<" if fmt == "binary_little_endian" else ">"
-    offset = body + sum(e["count"] * np.dtype([(p[0], order + p[1]) for p in e["props"]]).itemsize for e in before)
-    dtype = np.dtype([(p[0], order + p[1]) for p in vertex["props"]])
-    if offset + vertex["count"] * dtype.itemsize > len(data):
-        raise ValueError(f"{path}: PLY file is truncated (expected {vertex['count']} vertices)")
-    table = np.frombuffer(data, dtype=dtype, count=vertex["count"], offset=offset)
-    return {name: table[name].astype(np.float64) for name in dtype.names}, n_faces
-
-
-def _ascii_rows(rows: list[str], width: int, path: Path, first_line: int) -> np.ndarray:
-    """The (len(rows), width) float64 table of ASCII PLY rows; every row must hold exactly ``width`` numbers.
-
-    Args:
-        rows: the vertex lines.
-        width: the number of vertex properties.
-        path: the file, for messages.
-        first_line: the 1-based line number of ``rows[0]`` in the file, for messages.
-
-    Returns:
-        The table.
-    """
-    lengths = np.fromiter((len(r.split()) for r in rows), dtype=np.int64, count=len(rows))
-    bad = np.flatnonzero(lengths != width)
-    if bad.size:
-        k = int(bad[0])
-        raise ValueError(f"{path}: {bad.size} ASCII PLY vertex row(s) do not hold the {width} values the header "
-                         f"declares (first: line {first_line + k}, vertex {k}, with {int(lengths[k])} values); "
-                         "the file is malformed")
-    try:
-        return np.array(" ".join(rows).split(), dtype=np.float64).reshape(len(rows), width)
-    except ValueError as exc:
-        raise ValueError(f"{path}: non-numeric value in the ASCII PLY vertex rows ({exc})") from exc
 
 
 def _read_ply(path: Path) -> PointCloud:
-    props, n_faces = _read_ply_vertices(path)
+    _, elements = read_ply(path)
+    n_faces = sum(e.count for e in elements if e.name == "face")
     if n_faces > 0:
         raise ValueError(f"{path}: has {n_faces} faces, so it is a mesh, not a point cloud; "
                          "use load_mesh_as_point_cloud (or load_point_cloud, which handles both)")
-    if not all(k in props for k in "xyz"):
-        raise ValueError(f"{path}: PLY vertices lack x, y, z properties (found {sorted(props)})")
-    points = np.stack([props[k] for k in "xyz"], axis=1)
-    normals = next((np.stack([props[k] for k in names], axis=1) for names in _NORMAL_NAMES
+    props = ply_vertex_table(path, elements)
+    points = np.stack([props[k] for k in "xyz"], axis=1).astype(np.float64)
+    normals = next((np.stack([props[k] for k in names], axis=1).astype(np.float64) for names in _NORMAL_NAMES
                     if all(k in props for k in names)), None)
-    label = next((props[k] for k in _LABEL_NAMES if k in props), None)
-    return PointCloud(points, normals, None if label is None else _as_labels(label, str(path)), source=str(path))
+    label = next((props[k] for k in LABEL_NAMES if k in props), None)
+    return PointCloud(points, normals, None if label is None else as_labels(label, str(path)), source=str(path))
 
 
 def _write_ply(path: Path, points, normals, labels, ascii: bool) -> None:
@@ -336,45 +225,165 @@ def _columns_look_like_normals(values: np.ndarray) -> tuple[bool, str]:
     return False, f"vectors of lengths {lengths.min():.3g} to {lengths.max():.3g}, not unit vectors"
 
 
-def _from_columns(table: np.ndarray, path: Path, normals: str = "auto") -> PointCloud:
-    if table.ndim != 2 or table.shape[1] not in (3, 6, 7):
+def _colour_like(values: np.ndarray) -> bool:
+    """Whether every value is a colour channel: a whole number in [0, 255], or all values in [0, 1]."""
+    if not np.isfinite(values).all():
+        return False
+    lo, hi = float(values.min()), float(values.max())
+    return lo >= 0 and (hi <= 1 or (hi <= 255 and bool(np.all(values == np.round(values)))))
+
+
+def _pts_intensity_colours(table: np.ndarray, path: Path, normals: str) -> PointCloud:
+    """The points of a 7-column ``.pts`` table, x y z intensity r g b, when nothing else can be meant."""
+    layout = "a .pts file's 7 columns are x y z intensity r g b"
+    if normals == "file":
+        raise ValueError(f"{path}: {layout}, so it holds no normals (normals='file' asks for them)")
+    looks, _ = _columns_look_like_normals(table[:, 3:6])
+    if looks:
+        raise ValueError(f"{path}: {layout}, but here columns 4-6 are unit vectors, like normals (x y z nx ny nz "
+                         "label?); the reading is ambiguous. Name the file .txt if that is its layout")
+    if not _colour_like(table[:, 4:7]):
+        _, found = _columns_look_like_normals(table[:, 4:7])
+        raise ValueError(f"{path}: {layout}, but here columns 5-7 hold {found.split(',')[0]}, not colours "
+                         "(whole numbers in [0, 255] or values in [0, 1]); the layout is unknown")
+    return PointCloud(table[:, :3].astype(np.float64), None, None, source=str(path))
+
+
+def _from_columns(table: np.ndarray, path: Path, normals: str = "auto", pts: bool = False) -> PointCloud:
+    """A point cloud from the columns of a text or ``.npy`` table.
+
+    Args:
+        table: (N, C).
+        path: the file, for messages.
+        normals: "auto", "file" or "ignore" (:func:`read_point_cloud`).
+        pts: the table is a ``.pts`` scan: 4 columns are x y z intensity, 7 are x y z intensity r g b.
+
+    Returns:
+        The cloud as stored.
+    """
+    allowed = (3, 4, 6, 7) if pts else (3, 6, 7)
+    if table.ndim != 2 or table.shape[1] not in allowed:
         cols = table.shape[1] if table.ndim == 2 else table.ndim
-        raise ValueError(f"{path}: expected 3 (x y z), 6 (+ nx ny nz) or 7 (+ label) columns, got {cols}")
+        expected = ("3 (x y z), 4 (+ intensity), 6 (+ nx ny nz, or r g b) or 7 (+ intensity r g b)" if pts
+                    else "3 (x y z), 6 (+ nx ny nz) or 7 (+ label)")
+        raise ValueError(f"{path}: expected {expected} columns, got {cols}")
+    if pts and table.shape[1] == 7:
+        return _pts_intensity_colours(table, path, normals)
     extra = table[:, 3:6] if table.shape[1] >= 6 else None
+    looks, found = _columns_look_like_normals(extra) if extra is not None and np.isfinite(extra).all() else (False, "")
+    if table.shape[1] == 7 and normals != "file" and not looks:
+        raise ValueError(f"{path}: 7 columns are read as x y z nx ny nz label (the ShapeNet-part layout) only when "
+                         f"columns 4-6 are unit normals; here they hold {found or 'NaN or infinite values'}, so "
+                         "column 7 is not taken for part labels. Name an x y z intensity r g b scan .pts; pass "
+                         "normals='file' if columns 4-6 are normals")
     if extra is not None and normals == "ignore":
         extra = None
-    elif extra is not None and normals == "auto" and np.isfinite(extra).all():
-        looks, found = _columns_look_like_normals(extra)
-        if not looks:
-            warnings.warn(f"{path}: columns 4-6 hold {found}; they are not read as normals (normals are "
-                          "estimated instead); if they are normals, say so with normals='file'", stacklevel=4)
-            extra = None
-    labels = _as_labels(table[:, 6], str(path)) if table.shape[1] == 7 else None
+    elif extra is not None and normals == "auto" and np.isfinite(extra).all() and not looks:
+        warnings.warn(f"{path}: columns 4-6 hold {found}; they are not read as normals (normals are "
+                      "estimated instead); if they are normals, say so with normals='file'", stacklevel=4)
+        extra = None
+    labels = as_labels(table[:, 6], str(path)) if table.shape[1] == 7 else None
     return PointCloud(table[:, :3].astype(np.float64), extra, labels, source=str(path))
 
 
+# Inside a value of a row: a comma between two characters of it (a decimal comma, or a separator without spaces).
+_INNER_COMMA = re.compile(rb"[^\s,;],[^\s,;]")
+# Values of a row separated by blanks alone.
+_BLANK_SEPARATED = re.compile(rb"[^\s,;][ \t]+[^\s,;]")
+# A comma with no value before or after it on its line.
+_EMPTY_FIELD = re.compile(rb"^[ \t]*,|,[ \t]*,|,[ \t]*\r?$", re.MULTILINE)
+
+
+def _decimal_marks(path: Path, data: bytes) -> bytes:
+    """The text of a point cloud with its separators made spaces and decimal commas made points.
+
+    Read unambiguously: no comma (blanks separate); ';' separates, ',' is decimal (no '.' then); commas
+    separate (CSV) when no value holds a comma between blanks; decimal commas when values with one comma
+    each are separated by blanks and no '.' appears. Anything else is refused with the cause.
+
+    Args:
+        path: the file, for messages.
+        data: its text, comments removed.
+
+    Returns:
+        The text for :func:`cuboidlib.mesh_files.read_number_rows`.
+    """
+    if b"," not in data and b";" not in data:
+        return data
+    if b";" in data:
+        if b"," in data and b"." in data:
+            raise ValueError(f"{path}: values are separated by ';' and hold both ',' and '.' (thousands separators?); "
+                             "the numbers are ambiguous. Write them with one decimal mark and no thousands separator")
+        return data.replace(b";", b" ").replace(b",", b".")
+    if not (_INNER_COMMA.search(data) and _BLANK_SEPARATED.search(data)):
+        empty = _EMPTY_FIELD.search(data)
+        if empty:
+            line = data.count(b"\n", 0, empty.start()) + 1
+            raise ValueError(f"{path}: line {line} has an empty comma-separated field; every row needs all its values")
+        return data.replace(b",", b" ")
+    if b"." in data:
+        raise ValueError(f"{path}: values separated by blanks hold commas, and the file also has '.' (thousands "
+                         "separators, or decimal commas mixed with points?); the numbers are ambiguous")
+    if re.search(rb",[^\s,]*,|(^|\s),|,(\s|$)", data):
+        raise ValueError(f"{path}: rows mix commas between values with commas inside them; the numbers are "
+                         "ambiguous. Use blanks, commas or semicolons between values, and one decimal mark")
+    return data.replace(b",", b".")
+
+
+def _pts_rows(path: Path, rows) -> np.ndarray:
+    """The rows of a ``.pts`` file that hold points: each count line (a lone whole number) must count the rows
+    that follow it up to the next one."""
+    counts = np.flatnonzero(rows.widths == 1)
+    if not counts.size:
+        return np.arange(len(rows))
+    if counts[0] != 0:
+        raise ValueError(f"{path}: line {int(rows.lines[counts[0]])} holds a single value; a .pts file has one only "
+                         "as the count line before its points")
+    bounds = np.append(counts, len(rows))
+    for k, r in enumerate(counts.tolist()):
+        said, follow = float(rows.values[rows.starts[r]]), int(bounds[k + 1] - r - 1)
+        if said != follow:
+            cut = ": the file is truncated" if follow < said else ""
+            raise ValueError(f"{path}: the count line {int(rows.lines[r])} says {said:g} points, but {follow} rows "
+                             f"follow it{cut}")
+    if not rows.complete:
+        raise ValueError(f"{path}: the file ends inside a row (its last line has no line end) although its count "
+                         "line declares the rows: it is cut off")
+    return np.setdiff1d(np.arange(len(rows)), counts)
+
+
 def _read_text(path: Path, normals: str) -> PointCloud:
-    # numpy's C parser, one pass over the lines (commas read as spaces, '#' starts a comment)
-    with open(path, encoding="utf-8", errors="replace") as f, warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "loadtxt: input contained no data")  # reported below, with the file
-        try:
-            table = np.loadtxt((line.replace(",", " ") for line in f), dtype=np.float64, comments="#", ndmin=2)
-        except ValueError as exc:
-            detail = str(exc).split(";")[0]  # numpy's own hint after ';' is about its arguments
-            problem = "rows have different numbers of columns" if "columns changed" in detail else "non-numeric value"
-            raise ValueError(f"{path}: {problem} ({detail})") from exc
-    if table.size == 0:
+    data = strip_comments(read_file_bytes(path, f"a {path.suffix} point cloud"))
+    rows = read_number_rows(path, _decimal_marks(path, data), what="rows")
+    if not len(rows):
         raise ValueError(f"{path}: contains no points")
-    return _from_columns(table, path, normals)
+    pts = path.suffix.lower() == ".pts"
+    keep = _pts_rows(path, rows) if pts else np.arange(len(rows))
+    if not keep.size:
+        raise ValueError(f"{path}: contains no points")
+    widths = rows.widths[keep]
+    if np.any(widths != widths[0]):
+        k = int(np.argmax(widths != widths[0]))
+        hint = " (a point count? only .pts files have count lines)" if widths[0] == 1 else ""
+        raise ValueError(f"{path}: rows have different numbers of columns (line {int(rows.lines[keep[k]])} holds "
+                         f"{int(widths[k])} values, line {int(rows.lines[keep[0]])} {int(widths[0])}{hint})")
+    w = int(widths[0])
+    if keep.size == len(rows):
+        table = rows.values.reshape(-1, w)
+    else:
+        table = rows.values[rows.starts[keep, None] + np.arange(w)]
+    return _from_columns(table, path, normals, pts)
 
 
 def _read_npy(path: Path, normals: str) -> PointCloud:
+    with open(path, "rb") as f:
+        check_not_packed(path, f.read(8), "a NumPy .npy array")
     try:
         table = np.load(path, allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 - re-raised with the file name
         raise ValueError(f"{path}: not a readable NumPy array file ({exc})") from exc
-    if table.dtype.kind not in "fiu":
-        raise ValueError(f"{path}: expected a numeric array, got dtype {table.dtype}")
+    if not isinstance(table, np.ndarray) or table.dtype.kind not in "fiu":
+        raise ValueError(f"{path}: expected a numeric array, got {getattr(table, 'dtype', type(table).__name__)}")
     if table.size == 0:
         raise ValueError(f"{path}: contains no points")
     return _from_columns(table.astype(np.float64), path, normals)
@@ -385,9 +394,13 @@ def read_point_cloud(path: str | os.PathLike, normals: str = "auto") -> PointClo
 
     Args:
         path: by suffix, ``.ply`` (ASCII or binary; vertex properties x, y, z, optional nx, ny, nz and
-            label), ``.txt``/``.pts``/``.xyz`` (whitespace or comma separated rows ``x y z [nx ny nz
-            [label]]``, the ShapeNet-part "normal" layout) or ``.npy`` ((N, 3), (N, 6) as the authors'
-            released data, or (N, 7)).
+            label), ``.txt``/``.xyz`` (rows ``x y z [nx ny nz [label]]``, the ShapeNet-part "normal" layout;
+            the label column is read only when columns 4-6 are unit normals, or ``normals="file"``), ``.pts``
+            (a scan: rows ``x y z``, ``x y z intensity``, ``x y z`` + 3 columns as in ``.txt``, or ``x y z
+            intensity r g b``, each block of rows optionally after a line that counts them) or ``.npy``
+            ((N, 3), (N, 6) as the authors' released data, or (N, 7)). Text values are separated by blanks,
+            commas or semicolons, with decimal points or (where nothing else can be meant) decimal commas;
+            '#' starts a comment.
         normals: what columns 4-6 of a text or ``.npy`` file are: ``"auto"`` (normals when every row is a
             unit vector; otherwise, e.g. RGB colours, they are dropped with a warning that says what they
             hold), ``"file"`` (normals, whatever they hold) or ``"ignore"`` (dropped). A PLY file names its
@@ -400,8 +413,8 @@ def read_point_cloud(path: str | os.PathLike, normals: str = "auto") -> PointClo
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unknown suffix, unreadable or malformed content, no points, NaN/inf values,
-            all points identical, zero normals.
+        ValueError: unknown suffix, unreadable, malformed, truncated, compressed or ambiguous content, no
+            points, NaN/inf values, all points identical, zero normals.
     """
     path = _check_file(path)
     if normals not in ("auto", "file", "ignore"):
@@ -435,12 +448,8 @@ def read_labels(path: str | os.PathLike) -> np.ndarray:
         (N,) int64.
     """
     path = _check_file(path)
-    tokens = path.read_text(errors="replace").split()
-    try:
-        values = np.array(tokens, dtype=np.float64)
-    except ValueError as exc:
-        raise ValueError(f"{path}: label file holds a non-numeric value ({exc})") from exc
-    return _as_labels(values, str(path))
+    rows = read_number_rows(path, read_file_bytes(path, "a label file"), what="label file")
+    return as_labels(rows.values, str(path))
 
 
 def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None, ascii: bool = False) -> Path:
@@ -473,7 +482,7 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
         raise ValueError(f"{source}: coordinates up to {np.abs(points).max():.3g} do not fit the float32 of "
                          f"{suffix} files; rescale them or write .txt")
     if labels is not None:  # PLY stores int32 labels, .npy float32 (whole numbers exact below 2^24)
-        labels = _as_labels(labels, source, limit={".ply": 2**31, ".npy": 2**24}.get(suffix, 2**62))
+        labels = as_labels(labels, source, limit={".ply": 2**31, ".npy": 2**24}.get(suffix, 2**62))
     if suffix == ".ply":
         with atomic_path(path) as tmp:
             _write_ply(tmp, points, normals, labels, ascii)
@@ -495,99 +504,13 @@ def write_point_cloud(path: str | os.PathLike, points, normals=None, labels=None
 # --------------------------------------------------------------------------------------- meshes
 
 
-# A face line of an OBJ file with a vertex index 0 (OBJ counts from 1; trimesh would silently shift such a file).
-_OBJ_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r\n]|$)")
-
-
-def _check_obj_indices(path: Path) -> None:
-    """Refuse an OBJ file whose faces use vertex index 0 (a 0-based file): OBJ indices start at 1."""
-    data = path.read_bytes()
-    found = _OBJ_ZERO_INDEX.search(data)
-    if found:
-        line = data.count(b"\n", 0, found.start()) + 1
-        end = data.find(b"\n", found.start())
-        text = data[found.start():end if end >= 0 else len(data)].decode(errors="replace").strip()
-        raise ValueError(f"{path}: line {line} ({text!r}) refers to vertex "
-                         "0, but OBJ vertex indices start at 1; the file seems to count from 0. Add 1 to every face "
-                         "index (or export it again) so that no vertex is dropped or shifted")
-
-
-def _check_glb(path: Path) -> None:
-    """Refuse a GLB file whose header, chunks or buffers claim more bytes than the file holds."""
-    import struct
-
-    data = path.read_bytes()
-    if len(data) < 20:
-        raise ValueError(f"{path}: unreadable mesh: an empty or truncated GLB file ({len(data)} bytes; a GLB has a 12-byte header "
-                         "and at least one chunk)")
-    magic, version, length = struct.unpack_from("<4sII", data)
-    if magic != b"glTF":
-        raise ValueError(f"{path}: unreadable mesh: not a GLB file (it does not start with 'glTF')")
-    if length != len(data):
-        raise ValueError(f"{path}: unreadable mesh: the GLB header declares {length:,} bytes but the file has {len(data):,}; "
-                         "it is truncated or damaged")
-    offset, chunks = 12, {}
-    while offset + 8 <= length:
-        size, kind = struct.unpack_from("<I4s", data, offset)
-        if offset + 8 + size > length:
-            raise ValueError(f"{path}: unreadable mesh: a GLB chunk declares {size:,} bytes, beyond the end of the file "
-                             f"({length:,} bytes); it is truncated or damaged")
-        chunks.setdefault(kind, data[offset + 8:offset + 8 + size])
-        offset += 8 + size
-    try:
-        doc = json.loads(chunks.get(b"JSON", b"").decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: unreadable mesh: the GLB's JSON chunk is missing or unreadable ({exc})") from exc
-    binary = len(chunks.get(b"BIN\x00", b""))
-    for k, buffer in enumerate(doc.get("buffers", []) if isinstance(doc, dict) else []):
-        claimed = buffer.get("byteLength") if isinstance(buffer, dict) else None
-        if isinstance(buffer, dict) and "uri" not in buffer and (not isinstance(claimed, int) or claimed > binary):
-            raise ValueError(f"{path}: unreadable mesh: GLB buffer {k} claims {claimed!r} bytes but the file's binary chunk holds "
-                             f"{binary:,}; it is damaged")
-
-
-def _load_mesh(path: Path) -> trimesh.Trimesh:
-    if path.suffix.lower() == ".obj":
-        _check_obj_indices(path)
-    if path.suffix.lower() == ".glb":
-        _check_glb(path)
-    try:
-        loaded = trimesh.load(str(path), process=False)
-    except Exception as exc:  # noqa: BLE001 - re-raised with the file name
-        raise ValueError(f"{path}: unreadable mesh ({type(exc).__name__}: {exc})") from exc
-    if isinstance(loaded, trimesh.Scene):  # e.g. GLB: bake every node's transform into one mesh
-        vertices, faces, count = [], [], 0
-        for node in loaded.graph.nodes_geometry:
-            transform, name = loaded.graph[node]
-            geom = loaded.geometry.get(name)
-            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
-                vertices.append(trimesh.transform_points(geom.vertices, transform))
-                faces.append(geom.faces + count)
-                count += len(geom.vertices)
-        if not faces:
-            raise ValueError(f"{path}: the mesh is empty (the file holds no triangles)")
-        loaded = trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
-    if not isinstance(loaded, trimesh.Trimesh):
-        raise ValueError(f"{path}: contains no faces ({type(loaded).__name__}); for a point cloud use read_point_cloud")
-    if len(loaded.faces) == 0:
-        raise ValueError(f"{path}: the mesh is empty (the file holds no triangles)")
-    faces = np.asarray(loaded.faces)
-    if faces.min() < 0 or faces.max() >= len(loaded.vertices):
-        bad = faces.max() if faces.max() >= len(loaded.vertices) else faces.min()
-        raise ValueError(f"{path}: a face refers to vertex {bad}, but the mesh has {len(loaded.vertices)} vertices")
-    if not np.isfinite(loaded.vertices).all():
-        raise ValueError(f"{path}: the mesh has NaN or infinite vertex coordinates")
-    if loaded.area <= 0:
-        raise ValueError(f"{path}: the mesh has zero surface area (all triangles are degenerate)")
-    return loaded
-
-
 def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int = 0,
                              orient: str = "auto") -> PointCloud:
     """Sample ``n_points`` points area-uniformly on a mesh file, with the normals of their faces.
 
     Args:
-        path: any mesh trimesh reads (OBJ, PLY with faces, OFF, STL, GLB/GLTF).
+        path: a mesh: OBJ, OFF or PLY with faces (read by :func:`cuboidlib.mesh_files.read_polygon_mesh`, polygons
+            triangulated inside their outlines), STL, GLB or GLTF (read by trimesh).
         n_points: number of points N, from 1 to ``cuboidlib._checks.MAX_SHAPE_POINTS``.
         seed: seed of the sampling.
         orient: ``"auto"``: for a watertight mesh with consistent winding, trust the winding (flipped
@@ -605,7 +528,7 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
     n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     if orient not in ("auto", "winding", "visibility"):
         raise ValueError(f"orient must be 'auto', 'winding' or 'visibility', got {orient!r}")
-    mesh = _load_mesh(path)
+    mesh, face_labels = load_triangle_mesh(path)
     rng = np.random.default_rng(seed)
     areas = mesh.area_faces
     cdf = np.cumsum(areas)
@@ -621,18 +544,8 @@ def load_mesh_as_point_cloud(path: str | os.PathLike, n_points: int, seed: int =
     elif closed and mesh.volume < 0:
         normals = -normals
     validate_point_cloud(points, normals, None, str(path))
-    face_labels = _ply_face_labels(mesh)
     labels = None if face_labels is None else face_labels[face]
     return PointCloud(points, normals.astype(np.float32), labels, source=str(path))
-
-
-def _ply_face_labels(mesh: trimesh.Trimesh) -> np.ndarray | None:
-    """Per-face ``label`` of a PLY mesh (as :func:`write_shape_mesh` writes), if there is one."""
-    try:
-        labels = np.asarray(mesh.metadata["_ply_raw"]["face"]["data"]["label"]).reshape(-1)
-    except (KeyError, ValueError, TypeError, IndexError):
-        return None
-    return labels.astype(np.int64) if len(labels) == len(mesh.faces) else None
 
 
 def is_mesh_file(path: str | os.PathLike) -> bool:
@@ -647,7 +560,8 @@ def is_mesh_file(path: str | os.PathLike) -> bool:
     path = _check_file(path)
     suffix = path.suffix.lower()
     if suffix == ".ply":
-        return _read_ply_vertices(path)[1] > 0
+        _, elements, _, _ = parse_ply_header(path, read_file_bytes(path, "a PLY file"))
+        return sum(e.count for e in elements if e.name == "face") > 0
     return suffix in MESH_SUFFIXES
 
 
@@ -779,7 +693,7 @@ def shapenet_part_files(root: str | os.PathLike, category: str, split: str = "tr
     root = Path(root)
     cat_file = _check_file(root / "synsetoffset2category.txt")
     synsets = {}
-    for line in cat_file.read_text().splitlines():
+    for line in read_file_bytes(cat_file, "a text file").decode("utf-8", errors="replace").splitlines():
         tok = line.split()
         if len(tok) >= 2:
             synsets[tok[0].lower()] = tok[1]
@@ -792,10 +706,9 @@ def shapenet_part_files(root: str | os.PathLike, category: str, split: str = "tr
         if s not in ("train", "val", "test"):
             raise ValueError(f"split must be 'train', 'val', 'test' or 'trainval', got {split!r}")
         list_file = _check_file(root / "train_test_split" / f"shuffled_{s}_file_list.json")
-        try:
-            entries = json.loads(list_file.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{list_file}: not valid JSON ({exc})") from exc
+        entries = read_json(list_file)
+        if not isinstance(entries, list):
+            raise ValueError(f"{list_file}: a split list must hold a JSON list of names, got {type(entries).__name__}")
         for entry in entries:
             parts = str(entry).split("/")
             if len(parts) >= 2 and parts[-2] == synset:
@@ -828,7 +741,8 @@ def authors_layout_files(root: str | os.PathLike, category: str, split: str = "t
         except ValueError as exc:
             raise ValueError(f"{npy}: the file list must be an array of strings saved without pickle ({exc})") from exc
     elif txt.is_file():
-        names = [ln.strip() for ln in txt.read_text().splitlines() if ln.strip()]
+        text = read_file_bytes(txt, "a text file").decode("utf-8", errors="replace")
+        names = [ln.strip() for ln in text.splitlines() if ln.strip()]
     else:
         raise FileNotFoundError(f"{npy}: no such file list (nor {txt.name})")
     files = [root / category / (n if Path(n).suffix else n + ".npy") for n in names]

@@ -38,6 +38,7 @@ from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
 from .dataset import load_splits
+from .files import read_json
 from .train import SELECTIONS, TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
@@ -359,7 +360,7 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
     path = card_path(checkpoint)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no checkpoint card (written by 'cuboidlib train --release')")
-    card = json.loads(path.read_text())
+    card = read_json(path)
     if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
         raise ValueError(f"{path}: not a cuboidlib checkpoint card (no format tag {CARD_FORMAT!r})")
     return card

@@ -561,7 +561,8 @@ def test_obj_faces_counting_from_zero_are_refused_not_shifted(tmp_path):
     with pytest.raises(ValueError, match=r"zero.obj: line 5 \('f 0 1 2'\) refers to vertex 0.*start at 1"):
         io.load_mesh_as_point_cloud(tmp_path / "zero.obj", 10)
     (tmp_path / "slashes.obj").write_text(vertices + "vt 0 0\nf 1/1 2/1 3/1\nf 1//1 3//1 4//1\nf 10 2 4\n")
-    with pytest.raises(ValueError, match="unreadable mesh"):  # out of range, named by the reader
+    with pytest.raises(ValueError, match=r"slashes.obj: line 8 \('f 10 2 4'\) refers to vertex 10, but the file "
+                       "defines 4 vertices"):
         io.load_mesh_as_point_cloud(tmp_path / "slashes.obj", 10)
     (tmp_path / "good.obj").write_text(vertices + "f 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
     assert len(io.load_mesh_as_point_cloud(tmp_path / "good.obj", 10)) == 10
@@ -1035,3 +1036,128 @@ def test_summary_cells_never_start_a_formula_property(value):
     text = "" if value is None else str(value)
     assert cell[:1] not in ("=", "+", "-", "@", "\t", "\r")
     assert cell == text or cell == "'" + text
+
+
+# ------------------------------------------------------------------------------ files: unclear failures made clear
+
+
+def _zip(name: str, content: bytes) -> bytes:
+    import io as bytes_io
+    import zipfile
+
+    buffer = bytes_io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr(name, content)
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize("name", ["s.ply", "s.obj", "s.off", "s.txt", "s.pts", "s.xyz", "s.npy", "s.stl", "s.glb",
+                                  "s.seg", "s.json"])
+@pytest.mark.parametrize("packing", ["gzip", "zip"])
+def test_a_compressed_or_archived_file_is_named_as_such_by_every_reader(tmp_path, chair, name, packing):
+    import gzip
+
+    from cuboidlib.config import read_config_file
+
+    content = b"ply\nformat ascii 1.0\n" if name.endswith(".ply") else b"0 0 0\n1 0 0\n0 1 0\n"
+    path = tmp_path / name
+    path.write_bytes(gzip.compress(content) if packing == "gzip" else _zip(name, content))
+    what = "gzip-compressed.*gunzip" if packing == "gzip" else r"a zip archive \(a NumPy .npz file is one\)"
+    read = {".seg": io.read_labels, ".json": read_config_file}.get(path.suffix, lambda p: io.load_point_cloud(p, 64))
+    with pytest.raises(ValueError, match=f"{name}: is {what}"):
+        read(path)
+
+
+def test_an_npz_archive_named_npy_is_reported_and_skipped_in_a_folder_run(tmp_path, chair, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    io.write_point_cloud(data / "good.ply", chair.points, chair.normals)
+    np.savez(data / "bad.npz", points=chair.points)
+    (data / "bad.npz").rename(data / "bad.npy")
+    with pytest.raises(ValueError, match=r"bad.npy: is a zip archive \(a NumPy .npz file is one\), not a NumPy .npy "
+                                         r"array; .*np.save the array you want"):
+        io.read_point_cloud(data / "bad.npy")
+    assert main(["fit", str(data), "--out", str(tmp_path / "out"), *[a for a in FAST_FIT if a != "--quiet"]]) == 1
+    err = capsys.readouterr().err
+    assert "skipped" in err and "bad.npy: is a zip archive" in err and "Traceback" not in err
+    assert (tmp_path / "out" / "good.json").is_file()
+
+
+@pytest.mark.parametrize("deep", ["[" * 50_000 + "]" * 50_000, '{"a": ' * 50_000 + "1" + "}" * 50_000])
+def test_json_nested_too_deeply_is_refused_wherever_json_is_read(tmp_path, capsys, deep):
+    from cuboidlib.config import read_config_file
+    from cuboidlib.export import read_cuboids_json, read_manifest
+    from cuboidlib.files import MANIFEST, result_files_in
+    from cuboidlib.release import read_card
+
+    nested = "nested too deeply"
+    path = tmp_path / "deep.json"
+    path.write_text(deep)
+    for read in (read_config_file, read_cuboids_json):
+        with pytest.raises(ValueError, match=f"deep.json: the JSON is {nested}"):
+            read(path)
+    assert main(["train", "--config", str(path), "--out", str(tmp_path / "run")]) == 2
+    assert nested in capsys.readouterr().err
+    assert main(["view", str(path), "--out", str(tmp_path / "v.html"), "--quiet"]) == 2
+    assert nested in capsys.readouterr().err
+    (tmp_path / "chair.pt").write_bytes(b"")
+    (tmp_path / "chair.json").write_text(deep)  # the checkpoint's card
+    with pytest.raises(ValueError, match=nested):
+        read_card(tmp_path / "chair.pt")
+    (tmp_path / MANIFEST).write_text(deep)  # a results folder's own files are then only those beside result JSONs
+    assert read_manifest(tmp_path) is None and MANIFEST not in result_files_in(tmp_path)
+    root = tmp_path / "shapenet"
+    (root / "train_test_split").mkdir(parents=True)
+    (root / "synsetoffset2category.txt").write_text("Chair\t03001627\n")
+    (root / "train_test_split" / "shuffled_train_file_list.json").write_text(deep)
+    with pytest.raises(ValueError, match=f"shuffled_train_file_list.json: the JSON is {nested}"):
+        io.shapenet_part_files(root, "chair")
+    assert main(["train", "--set", f"model.k={deep}", "--out", str(tmp_path / "run")]) == 2
+    assert "--set model.k: the value is nested too deeply" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("eol", ["\r", "\r\n"])
+def test_a_byte_order_mark_and_cr_line_ends_are_read_in_every_text_format(tmp_path, chair, eol):
+    from cuboidlib.config import read_config_file
+    from cuboidlib.mesh_files import read_polygon_mesh
+
+    bom = b"\xef\xbb\xbf"
+    rows = [" ".join(repr(v) for v in p) for p in chair.points[:20].astype(np.float64).tolist()]
+    files = {
+        "c.xyz": rows,
+        "c.pts": [str(len(rows))] + rows,
+        "c.ply": ["ply", "format ascii 1.0", f"element vertex {len(rows)}", "property double x", "property double y",
+                  "property double z", "end_header"] + rows,
+    }
+    for name, lines in files.items():
+        (tmp_path / name).write_bytes(bom + (eol.join(lines) + eol).encode())
+        np.testing.assert_array_equal(io.read_point_cloud(tmp_path / name).points, chair.points[:20])
+    square = ["v 0 0 0", "v 1 0 0", "v 1 1 0", "v 0 1 0"]
+    meshes = {"m.obj": ["# a square", *square, "f 1 2 3 4"], "m.off": ["OFF", "4 1 0", *(v[2:] for v in square),
+                                                                       "4 0 1 2 3"]}
+    for name, lines in meshes.items():
+        (tmp_path / name).write_bytes(bom + (eol.join(lines) + eol).encode())
+        mesh = read_polygon_mesh(tmp_path / name)
+        assert mesh.vertices.shape == (4, 3) and mesh.indices.tolist() == [0, 1, 2, 3]
+    (tmp_path / "c.seg").write_bytes(bom + eol.join(["3", "1", "2"]).encode())
+    assert io.read_labels(tmp_path / "c.seg").tolist() == [3, 1, 2]
+    (tmp_path / "c.json").write_bytes(bom + eol.join(["{", '"seed": 3', "}"]).encode())
+    assert read_config_file(tmp_path / "c.json") == {"seed": 3}
+
+
+@pytest.mark.parametrize("header, message", [
+    ("element vertex 1\nproperty float x\nproperty float y\nproperty float x\n",
+     "PLY element 'vertex' declares property 'x' twice"),
+    ("element vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement face 0\n"
+     "property list uchar int vertex_indices\nproperty list uchar int vertex_indices\n",
+     "PLY element 'face' declares property 'vertex_indices' twice"),
+    ("element vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement vertex 1\nproperty float x\n",
+     "the PLY header declares element 'vertex' twice"),
+    ("element vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement face 1\n"
+     "property list float int vertex_indices\n", "PLY list 'vertex_indices' has count type 'float'"),
+])
+def test_a_duplicated_or_ill_typed_ply_property_is_refused_by_name(tmp_path, header, message):
+    path = tmp_path / "dup.ply"
+    path.write_text(f"ply\nformat ascii 1.0\n{header}end_header\n0 0 0\n")
+    with pytest.raises(ValueError, match=f"dup.ply: {message}"):
+        io.read_point_cloud(path)

@@ -5,8 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from cuboidlib import io
+from cuboidlib.mesh_files import PolygonMesh, read_polygon_mesh, triangulate_polygons
 from cuboidlib.shapes import PART_NAMES, make_shape
 
 DATA_SAMPLES = Path(__file__).resolve().parents[1] / "data_samples"
@@ -277,3 +280,464 @@ def test_samples_command(tmp_path, capsys):
     assert io.read_point_cloud(tmp_path / "points" / "animal_0.ply").points.shape == (64, 3)
     assert main(["samples", "--out", str(tmp_path), "--points", "0"]) == 2
     assert "--per-category and --points must be positive" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------ files written from known arrays
+#
+# Every reader is checked against files written here, from known arrays, by writers independent of cuboidlib's:
+# read back exactly, and a file cut at any byte is refused, or read as the shorter file it is where no header
+# counts its rows.
+
+READERS = settings(max_examples=40, deadline=None,
+                   suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+EOLS = st.sampled_from(["\n", "\r\n", "\r"])
+
+
+def _polygon_mesh(rng: np.random.Generator, n_objects: int):
+    """Objects of random vertices and polygons (3 to 6 distinct vertices of their own object)."""
+    objects, start = [], 0
+    for k in range(n_objects):
+        vertices = rng.normal(size=(int(rng.integers(3, 9)), 3)) + [10.0 * k, 0, 0]
+        polygons = [start + rng.choice(len(vertices), int(rng.integers(3, min(6, len(vertices)) + 1)), replace=False)
+                    for _ in range(int(rng.integers(1, 5)))]
+        objects.append((vertices, polygons))
+        start += len(vertices)
+    vertices = np.concatenate([v for v, _ in objects])
+    polygons = [p for _, ps in objects for p in ps]
+    return objects, vertices, polygons
+
+
+def _obj_statements(rng: np.random.Generator, objects) -> list[tuple[str, str | None]]:
+    """The statements of an OBJ file of ``objects`` as (text, kind): 'v' and 'f' carry geometry. Faces refer to
+    their vertices absolutely or relatively (negative), as v, v/vt, v//vn or v/vt/vn, some continued on the next
+    line; texture coordinates and normals, comments, groups and materials between them."""
+    out, count, n_vt, n_vn = [("# written by the tests", None), ("mtllib shapes.mtl", None)], 0, 0, 0
+    for k, (vertices, polygons) in enumerate(objects):
+        out += [(f"o part{k}", None), (f"g group{k} shared", None), ("usemtl m", None), ("s 1", None)]
+        for x, y, z in vertices.tolist():
+            extra = rng.choice(["", " 1.0", " 0.5 0.25 1"])
+            out.append((f"v {x!r} {y!r} {z!r}{extra}" + (" # a vertex" if rng.random() < 0.2 else ""), "v"))
+        out += [("vt 0.5 0.25", None), ("vn 0 0 1", None), ("vn 1 0 0", None)]
+        n_vt, n_vn, count = n_vt + 1, n_vn + 2, count + len(vertices)
+        for polygon in polygons:
+            refs = []
+            for v in polygon.tolist():
+                ref = str(v + 1) if rng.random() < 0.5 else str(v - count)
+                form = int(rng.integers(4))
+                vt = str(n_vt) if rng.random() < 0.5 else "-1"
+                vn = str(n_vn) if rng.random() < 0.5 else "-2"
+                refs.append([ref, f"{ref}/{vt}", f"{ref}//{vn}", f"{ref}/{vt}/{vn}"][form])
+            cut = int(rng.integers(1, len(refs) + 1))
+            joint = " \\\n  " if rng.random() < 0.3 else " "
+            out.append(("f " + " ".join(refs[:cut]) + joint + " ".join(refs[cut:]), "f"))
+        out.append(("l 1 2", None))
+    return out
+
+
+def _obj_bytes(statements, eol: str, bom: bool) -> bytes:
+    text = "".join(t.replace("\n", eol) + eol for t, _ in statements)
+    return (b"\xef\xbb\xbf" if bom else b"") + text.encode()
+
+
+def _ply_bytes(vertices, polygons, fmt: str, labels=None, eol: str = "\n") -> bytes:
+    """A PLY mesh (or, without polygons, a point cloud) with a camera element before the vertices, vertex
+    colours, an edge element after the faces and comments that hold the words 'end_header'."""
+    order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt, "<")
+    header = ["ply", f"format {fmt} 1.0", "comment end_header is a word here, not the header's end",
+              "element camera 1", "property float focal", "obj_info end_header", f"element vertex {len(vertices)}",
+              "property double x", "property double y", "property double z", "property uchar red"]
+    if polygons is not None:
+        header += [f"element face {len(polygons)}", "property list uchar int vertex_indices"]
+        header += ["property int label"] if labels is not None else []
+        header += ["element edge 1", "property int vertex1", "property int vertex2"]
+    header += ["comment end_header", "end_header"]
+    head = (eol.join(header) + eol).encode()
+    if fmt == "ascii":
+        rows = ["35.5"] + [f"{x!r} {y!r} {z!r} 200" for x, y, z in vertices.tolist()]
+        if polygons is not None:
+            rows += [" ".join(map(str, [len(p), *p.tolist()] + ([int(labels[i])] if labels is not None else [])))
+                     for i, p in enumerate(polygons)]
+            rows.append("0 1")
+        return head + (eol.join(rows) + eol).encode()
+    vertex = np.empty(len(vertices), [("x", order + "f8"), ("y", order + "f8"), ("z", order + "f8"), ("r", "u1")])
+    vertex["x"], vertex["y"], vertex["z"], vertex["r"] = *vertices.T, 200
+    body = np.array([35.5], order + "f4").tobytes() + vertex.tobytes()
+    for i, p in enumerate(polygons or []):
+        body += bytes([len(p)]) + np.asarray(p, order + "i4").tobytes()
+        body += np.array([labels[i]], order + "i4").tobytes() if labels is not None else b""
+    return head + body + (np.array([0, 1], order + "i4").tobytes() if polygons is not None else b"")
+
+
+def _off_bytes(vertices, polygons, eol: str = "\n") -> bytes:
+    rows = ["OFF", "# a comment line", f"{len(vertices)} {len(polygons)} 0"]
+    rows += [f"{x!r} {y!r} {z!r}" for x, y, z in vertices.tolist()]
+    rows += [" ".join(map(str, [len(p), *p.tolist()])) + (" 255 0 0" if k % 2 else "") for k, p in enumerate(polygons)]
+    return (eol.join(rows) + eol).encode()
+
+
+def _assert_same_polygons(mesh, vertices, polygons):
+    np.testing.assert_array_equal(mesh.vertices, vertices)
+    np.testing.assert_array_equal(mesh.sizes, [len(p) for p in polygons])
+    np.testing.assert_array_equal(mesh.indices, np.concatenate(polygons))
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), n_objects=st.integers(1, 3), eol=EOLS, bom=st.booleans(),
+       fmt=st.sampled_from(["obj", "off", "ascii", "binary_little_endian", "binary_big_endian"]))
+def test_mesh_files_written_from_arrays_read_back_exactly_property(tmp_path, seed, n_objects, eol, bom, fmt):
+    rng = np.random.default_rng(seed)
+    objects, vertices, polygons = _polygon_mesh(rng, n_objects)
+    labels = rng.integers(0, 9, len(polygons))
+    if fmt == "obj":
+        data, path = _obj_bytes(_obj_statements(rng, objects), eol, bom), tmp_path / "m.obj"
+    elif fmt == "off":
+        data, path = (b"\xef\xbb\xbf" if bom else b"") + _off_bytes(vertices, polygons, eol), tmp_path / "m.off"
+    else:
+        data, path = _ply_bytes(vertices, polygons, fmt, labels, eol), tmp_path / "m.ply"
+    path.write_bytes(data)
+    mesh = read_polygon_mesh(path)
+    _assert_same_polygons(mesh, vertices, polygons)
+    if fmt not in ("obj", "off"):
+        np.testing.assert_array_equal(mesh.labels, labels)
+
+
+def _statement_ends(statements, eol: str, bom: bool) -> np.ndarray:
+    lengths = [len((t.replace("\n", eol) + eol).encode()) for t, _ in statements]
+    return np.cumsum(lengths) + 3 * bom
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), eol=EOLS, bom=st.booleans(), data=st.data())
+def test_an_obj_file_cut_anywhere_is_refused_or_read_as_the_prefix_it_is_property(tmp_path, seed, eol, bom, data):
+    rng = np.random.default_rng(seed)
+    objects, vertices, polygons = _polygon_mesh(rng, 2)
+    statements = _obj_statements(rng, objects)
+    full = _obj_bytes(statements, eol, bom)
+    cut = data.draw(st.integers(0, len(full) - 1), label="cut")
+    (tmp_path / "cut.obj").write_bytes(full[:cut])
+    ends = _statement_ends(statements, eol, bom)
+    whole = [kind for (_, kind), end in zip(statements, ends) if end <= cut]
+    partial = next((kind for (_, kind), end in zip(statements, ends) if end > cut), None)
+    nv, nf = whole.count("v"), whole.count("f")
+    try:
+        mesh = read_polygon_mesh(tmp_path / "cut.obj")
+    except ValueError as exc:
+        assert "cut.obj" in str(exc)
+        return
+    assert len(mesh.vertices) in (nv, nv + (partial == "v")) and len(mesh.sizes) in (nf, nf + (partial == "f"))
+    np.testing.assert_array_equal(mesh.vertices[:nv], vertices[:nv])
+    if nf:
+        _assert_same_polygons(PolygonMesh(mesh.vertices[:nv], mesh.sizes[:nf], mesh.indices[:mesh.sizes[:nf].sum()]),
+                              vertices[:nv], polygons[:nf])
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), eol=EOLS, data=st.data(),
+       fmt=st.sampled_from(["off", "ascii", "binary_little_endian", "binary_big_endian", "ascii cloud",
+                            "binary cloud", "pts", "npy", "stl", "glb"]))
+def test_a_file_whose_header_counts_its_content_is_refused_when_cut_anywhere_property(tmp_path, seed, eol, data,
+                                                                                        fmt):
+    rng = np.random.default_rng(seed)
+    _, vertices, polygons = _polygon_mesh(rng, 2)
+    if fmt == "off":
+        full, name = _off_bytes(vertices, polygons, eol), "m.off"
+    elif fmt in ("stl", "glb"):
+        full, name = trimesh.creation.box().export(file_type=fmt), f"m.{fmt}"
+    elif fmt == "npy":
+        import io as bytes_io
+
+        buffer = bytes_io.BytesIO()
+        np.save(buffer, vertices)
+        full, name = buffer.getvalue(), "m.npy"
+    elif fmt == "pts":
+        full, name = (f"{len(vertices)}{eol}" + "".join(f"{x!r} {y!r} {z!r} 7 1 2 3{eol}" for x, y, z in
+                                                        vertices.tolist())).encode(), "m.pts"
+    else:
+        full, name = _ply_bytes(vertices, None if "cloud" in fmt else polygons, fmt.split()[0] if fmt != "binary cloud"
+                                else "binary_little_endian", eol=eol), "m.ply"
+    (tmp_path / name).write_bytes(full)
+    read = (io.read_point_cloud if fmt in ("pts", "npy", "ascii cloud", "binary cloud") else
+            (lambda p: io.load_mesh_as_point_cloud(p, 50)) if fmt in ("stl", "glb") else read_polygon_mesh)
+    whole = read(tmp_path / name)
+    cut = data.draw(st.integers(0, len(full) - 1), label="cut")
+    (tmp_path / name).write_bytes(full[:cut])
+    if fmt in ("off", "ascii", "ascii cloud", "pts") and cut > len(full.rstrip(b"\r\n")):
+        # only the LF of the last CRLF is gone: every row is still there and ended (by a CR)
+        again = read(tmp_path / name)
+        np.testing.assert_array_equal(getattr(again, "points", None), getattr(whole, "points", None))
+        np.testing.assert_array_equal(getattr(again, "vertices", None), getattr(whole, "vertices", None))
+        return
+    with pytest.raises(ValueError, match=name):
+        read(tmp_path / name)
+
+
+def test_a_mesh_cut_inside_its_face_list_is_refused_naming_the_counts(tmp_path):
+    mesh = trimesh.load(DATA_SAMPLES / "meshes" / "chair_0.ply", process=False)
+    exports = {".ply": mesh.export(file_type="ply", encoding="ascii"), ".off": mesh.export(file_type="off")}
+    for suffix, text in exports.items():
+        lines = (text if isinstance(text, bytes) else text.encode()).split(b"\n")
+        start = lines.index(b"end_header") + 1 if suffix == ".ply" else 2
+        (tmp_path / f"cut{suffix}").write_bytes(b"\n".join(lines[:start + 1082 + 412]) + b"\n")
+        fmt = suffix[1:].upper()
+        with pytest.raises(ValueError, match=f"cut{suffix}: the {fmt} header promises 2064 faces, the file holds 412"):
+            io.load_mesh_as_point_cloud(tmp_path / f"cut{suffix}", 100)
+        (tmp_path / f"cut{suffix}").write_bytes(b"\n".join(lines[:start + 1082 + 411]) + b"\n3 1 2")
+        with pytest.raises(ValueError, match="promises 2064 faces, the file holds 411 and part of another"):
+            io.load_mesh_as_point_cloud(tmp_path / f"cut{suffix}", 100)
+
+
+def test_an_obj_file_with_several_objects_and_relative_indices_keeps_every_object(tmp_path):
+    square = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf -4 -3 -2 -1\n"
+    moved = "v 5 0 0\nv 7 0 0\nv 7 2 0\nv 5 2 0\nf -4/1 -3/1 -2/1 -1/1\n"
+    (tmp_path / "two.obj").write_text(f"o small\n{square}o big\nvt 0 0\n{moved}")
+    mesh = read_polygon_mesh(tmp_path / "two.obj")
+    np.testing.assert_array_equal(mesh.indices, [0, 1, 2, 3, 4, 5, 6, 7])
+    pc = io.load_mesh_as_point_cloud(tmp_path / "two.obj", 2000, seed=0)
+    small = (pc.points[:, 0] <= 1).mean()
+    assert small == pytest.approx(1 / 5, abs=0.04), "the 1 x 1 square holds a fifth of the area, the 2 x 2 the rest"
+    assert ((pc.points[:, 0] >= 5) & (pc.points[:, 1] <= 2)).mean() == pytest.approx(4 / 5, abs=0.04)
+
+
+def test_obj_statements_that_cannot_be_read_exactly_are_refused(tmp_path):
+    cases = {
+        "v 0 0 0\nv 1 0 0\nf 1 2\n": r"line 3 \('f 1 2'\): a face needs at least 3 vertices",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n": r"refers to vertex -4 \(counting back\), but only 3 are defined",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/ 2 3\n": r"'1/' is not a face reference",
+        "v 0 0\n": r"line 1 \('v 0 0'\): a vertex holds x y z",
+        "v 0 0 0\nv 1 0 0\nv 0 1 x\nf 1 2 3\n": r"line 3: vertex coordinate 'x' is not a number",
+        "cstype bspline\n": "free-form curve or surface",
+        "v 0 0 0\nbogus 1 2\n": "unknown OBJ statement 'bogus'",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\": r"line 4 ends with a line continuation .* no line follows",
+    }
+    for k, (text, message) in enumerate(cases.items()):
+        (tmp_path / f"bad{k}.obj").write_text(text)
+        with pytest.raises(ValueError, match=f"bad{k}.obj: .*{message}"):
+            read_polygon_mesh(tmp_path / f"bad{k}.obj")
+
+
+def test_a_header_ends_at_the_line_end_header_not_at_a_comment_holding_it(tmp_path):
+    points = np.random.default_rng(0).random((300, 3)).astype("<f4")
+    header = (b"ply\nformat binary_little_endian 1.0\ncomment the header ends at end_header\nelement vertex 300\n"
+              b"property float x\nproperty float y\nproperty float z\nend_header\n")
+    (tmp_path / "c.ply").write_bytes(header + points.tobytes())
+    np.testing.assert_array_equal(io.read_point_cloud(tmp_path / "c.ply").points, points)
+    (tmp_path / "none.ply").write_bytes(header.replace(b"\nend_header\n", b"\nend_headers\n") + points.tobytes())
+    with pytest.raises(ValueError, match="none.ply: PLY header has no 'end_header' line"):
+        io.read_point_cloud(tmp_path / "none.ply")
+
+
+def test_an_ascii_ply_file_is_read_in_one_pass_with_bounded_memory(tmp_path):
+    import tracemalloc
+
+    rng = np.random.default_rng(0)
+    points, normals = rng.normal(size=(60_000, 3)) * 100, rng.normal(size=(60_000, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    labels = rng.integers(0, 50, 60_000)
+    path = io.write_point_cloud(tmp_path / "big.ply", points, normals, labels, ascii=True)
+    tracemalloc.start()
+    try:
+        pc = io.read_point_cloud(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    written = np.array([float(f"{v:.9g}") for v in points.astype(np.float32).ravel()]).reshape(-1, 3)
+    np.testing.assert_array_equal(pc.points, written)  # the values of the text, in float64
+    np.testing.assert_allclose(pc.normals, normals, atol=1e-6)
+    np.testing.assert_array_equal(pc.labels, labels)
+    size = path.stat().st_size
+    # the file, its numbers twice (parsed, then joined) and a block of text; parsed through Python strings, 17 times
+    assert peak < 5 * size + 10e6, f"reading {size / 1e6:.1f} MB of ASCII PLY took {peak / 1e6:.1f} MB"
+
+
+# ------------------------------------------------------------------------------ polygons
+
+
+def _star_polygon(rng: np.random.Generator, k: int) -> np.ndarray:
+    """A random star-shaped simple polygon of k vertices in the plane, counter-clockwise."""
+    gaps = rng.random(k) + 0.2
+    angles = np.cumsum(gaps) / gaps.sum() * 2 * np.pi
+    radii = rng.uniform(0.15, 1.0, k)
+    return np.stack([radii * np.cos(angles), radii * np.sin(angles)], axis=1)
+
+
+def _inside(points: np.ndarray, polygon: np.ndarray, tol: float) -> np.ndarray:
+    """Points inside the 2D polygon (even-odd rule) or within ``tol`` of its outline."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    x, y = points[:, None, 0], points[:, None, 1]
+    crosses = ((a[:, 1] > y) != (b[:, 1] > y)) & (x < a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) /
+                                                    np.where(b[:, 1] == a[:, 1], 1, b[:, 1] - a[:, 1]))
+    ab = b - a
+    t = np.clip(((points[:, None] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0, 1)
+    near = np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=-1).min(axis=1) <= tol
+    return (crosses.sum(axis=1) % 2 == 1) | near
+
+
+def _in_plane(rng: np.random.Generator, polygon: np.ndarray):
+    """The 2D polygon placed in 3D by a random rotation, scale and offset, and the map back to the plane."""
+    rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    scale, offset = 10.0 ** rng.uniform(-2, 2), rng.normal(size=3) * 10
+    vertices = np.c_[polygon, np.zeros(len(polygon))] @ rotation.T * scale + offset
+    return vertices, lambda p: ((p - offset) / scale) @ rotation
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), k=st.integers(4, 24), reverse=st.booleans())
+def test_polygons_are_triangulated_inside_their_outline_property(seed, k, reverse):
+    rng = np.random.default_rng(seed)
+    polygon = _star_polygon(rng, k)[::-1 if reverse else 1]
+    vertices, back = _in_plane(rng, polygon)
+    triangles, owner = triangulate_polygons(vertices, np.array([k]), np.arange(k))
+    assert (owner == 0).all() and len(triangles) <= k - 2
+    corners = vertices[triangles]
+    newell = np.cross(vertices, np.roll(vertices, -1, axis=0)).sum(axis=0)
+    facing = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) @ newell
+    assert (facing > 0).all(), "every triangle keeps the polygon's winding"
+    flat = back(vertices)[:, :2]
+    tri = flat[triangles]
+    area = np.abs(_cross2d(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])).sum() / 2
+    shoelace = abs(_cross2d(polygon, np.roll(polygon, -1, axis=0)).sum()) / 2
+    assert area == pytest.approx(shoelace, rel=1e-9), "the triangles cover the polygon's area"
+    assert _inside(tri.mean(axis=1), polygon, 1e-9).all(), "every triangle lies inside the outline"
+    probe = rng.uniform(-1, 1, (400, 2))
+    probe = probe[_inside(probe, polygon, 0)]
+    sides = np.stack([_cross2d(tri[None, :, (j + 1) % 3] - tri[None, :, j], probe[:, None] - tri[None, :, j])
+                      for j in range(3)])
+    covered = ((sides >= -1e-12).all(axis=0) | (sides <= 1e-12).all(axis=0)).sum(axis=1)
+    assert (covered >= 1).all(), "no point of the polygon is left out (with the area, no two triangles overlap)"
+
+
+def _cross2d(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), k=st.integers(4, 16), suffix=st.sampled_from([".obj", ".ply", ".off"]))
+def test_samples_on_an_n_gon_of_any_mesh_file_lie_inside_it_property(tmp_path, seed, k, suffix):
+    rng = np.random.default_rng(seed)
+    polygon = _star_polygon(rng, k)
+    vertices, back = _in_plane(rng, polygon)
+    path = tmp_path / f"ngon{suffix}"
+    if suffix == ".obj":
+        path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
+                        + "f " + " ".join(str(i - k) for i in range(k)) + "\n")
+    elif suffix == ".ply":
+        path.write_bytes(_ply_bytes(vertices, [np.arange(k)], "binary_little_endian"))
+    else:
+        path.write_bytes(_off_bytes(vertices, [np.arange(k)]))
+    flat = back(io.load_mesh_as_point_cloud(path, 500, seed=seed).points)
+    assert np.abs(flat[:, 2]).max() < 1e-9, "on the polygon's plane"
+    assert _inside(flat[:, :2], polygon, 1e-9).all(), "inside the polygon"
+
+
+def test_polygons_that_cross_themselves_or_bend_out_of_plane_are_refused(tmp_path):
+    star = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.arange(5) * 4 * np.pi / 5])  # a pentagram
+    bow = np.array([[0, 0, 0], [1, 1, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
+    bent = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 1], [1, 1, 0], [0, 2, -1]], dtype=float)  # not convex, not planar
+    for corners, message in ((star, "crosses or touches itself"), (bow, r"crosses itself \(its outline encloses no"),
+                             (bent, "is neither convex nor planar")):
+        with pytest.raises(ValueError, match=f"m.obj: face 0 \\({len(corners)} vertices\\) {message}"):
+            triangulate_polygons(corners, np.array([len(corners)]), np.arange(len(corners)), "m.obj")
+    big = np.c_[_star_polygon(np.random.default_rng(0), 1001), np.zeros(1001)]
+    with pytest.raises(ValueError, match="face 0 has 1001 vertices and is not convex; .* at most 1000 vertices"):
+        triangulate_polygons(big, np.array([1001]), np.arange(1001))
+    saddle = np.array([[0, 0, 0], [1, 0, 0.2], [1, 1, 0], [0, 1, 0.2]])  # convex seen from above: any fan will do
+    assert len(triangulate_polygons(saddle, np.array([4]), np.arange(4))[0]) == 2
+
+
+# ------------------------------------------------------------------------------ text point clouds
+
+
+def _text_cloud(rng: np.random.Generator, n: int, layout: str) -> tuple[np.ndarray, dict]:
+    points = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-3, 3)
+    if layout == "xyz":
+        return points, {}
+    if layout in ("normals", "labels"):
+        normals = rng.normal(size=(n, 3))
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        columns = [points, normals] + ([rng.integers(0, 50, (n, 1))] if layout == "labels" else [])
+        return np.concatenate(columns, axis=1), {"normals": normals}
+    intensity = rng.uniform(2, 1000, (n, 1))
+    rgb = rng.integers(0, 256, (n, 3)) if layout == "intensity rgb" else np.zeros((n, 0))
+    return np.concatenate([points, intensity, rgb], axis=1), {}
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), n=st.integers(2, 30), eol=EOLS, bom=st.booleans(), comment=st.booleans(),
+       case=st.sampled_from([(".txt", "xyz"), (".xyz", "normals"), (".txt", "labels"), (".pts", "xyz"),
+                             (".pts", "intensity"), (".pts", "intensity rgb")]),
+       marks=st.sampled_from([(" ", "."), ("\t", "."), (",", "."), (", ", "."), (";", "."), (" ", ","), (";", ","),
+                              ("\t", ",")]),
+       count_line=st.booleans())
+def test_text_point_clouds_with_any_separator_and_decimal_mark_read_back_exactly_property(
+        tmp_path, seed, n, eol, bom, comment, case, marks, count_line):
+    suffix, layout = case
+    separator, decimal = marks
+    rng = np.random.default_rng(seed)
+    table, expected = _text_cloud(rng, n, layout)
+    whole = {6} if layout == "labels" else set(range(4, 7)) if layout == "intensity rgb" else set()
+    rows = [separator.join(str(int(v)) if j in whole else repr(float(v)).replace(".", decimal)
+                           for j, v in enumerate(row)) for row in table.tolist()]
+    if suffix == ".pts" and count_line:
+        rows.insert(0, str(n))
+    if comment:
+        rows.insert(len(rows) // 2, "# a comment, with a comma. And a point")
+    path = tmp_path / f"cloud{suffix}"
+    path.write_bytes((b"\xef\xbb\xbf" if bom else b"") + (eol.join(rows) + eol).encode())
+    pc = io.read_point_cloud(path)
+    np.testing.assert_array_equal(pc.points, table[:, :3])
+    if "normals" in expected:
+        np.testing.assert_allclose(pc.normals, expected["normals"], atol=1e-6)
+    else:
+        assert pc.normals is None
+    if layout == "labels":
+        np.testing.assert_array_equal(pc.labels, table[:, 6])
+    else:
+        assert pc.labels is None, "a label column is never guessed"
+
+
+@READERS
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 20), suffix=st.sampled_from([".txt", ".xyz"]), data=st.data())
+def test_a_text_cloud_cut_anywhere_is_refused_or_read_as_the_prefix_it_is_property(tmp_path, seed, n, suffix, data):
+    table = np.random.default_rng(seed).normal(size=(n, 3))
+    full = "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in table.tolist()).encode()
+    cut = data.draw(st.integers(0, len(full) - 1), label="cut")
+    path = tmp_path / f"cut{suffix}"
+    path.write_bytes(full[:cut])
+    rows = [line.split() for line in full[:cut].decode().splitlines() if line.split()]
+    try:
+        pc = io.read_point_cloud(path)
+    except ValueError as exc:
+        assert path.name in str(exc)
+        return
+    np.testing.assert_array_equal(pc.points, np.array(rows, dtype=np.float64))
+    np.testing.assert_array_equal(pc.points[:-1], table[:len(rows) - 1])
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("scan.pts", "0 0 0 1 0 0 5\n1 0 0 0 1 0 3\n", "columns 4-6 are unit vectors, like normals"),
+    ("scan.pts", "0 0 0 10 2.5 100 100\n1 0 0 20 0.5 0 5\n", "columns 5-7 hold .*not colours"),
+    ("scan.pts", "3\n0 0 0\n1 0 0\n", r"the count line 1 says 3 points, but 2 rows follow it: the file is truncated"),
+    ("scan.pts", "2\n0 0 0\n1 0 0\n0 1 0\n", "the count line 1 says 2 points, but 3 rows follow it"),
+    ("scan.pts", "2\n0 0 0\n1 0 0.5", "ends inside a row"),
+    ("scan.txt", "0 0 0 10 206 100 100\n1 0 0 20 213 5 5\n", "column 7 is not taken for part labels"),
+    ("scan.xyz", "0 0 0 1\n1 0 0 2\n", r"expected 3 \(x y z\), 6 \(\+ nx ny nz\) or 7 \(\+ label\) columns, got 4"),
+    ("count.xyz", "2\n0 0 0\n1 0 0\n", "a point count. only .pts files have count lines"),
+    ("thousands.xyz", "1,234.5 2,345.5 3,456.5\n", r"thousands separators"),
+    ("mixed.xyz", "1,5 2,5,3 3\n", "rows mix commas between values with commas inside them"),
+    ("semi.xyz", "1,5;2.5;3,5\n", r"separated by ';' and hold both ',' and '.'"),
+    ("empty.txt", "1.5,,2.5\n", "line 1 has an empty comma-separated field"),
+])
+def test_text_columns_are_read_only_where_the_reading_is_unambiguous(tmp_path, name, text, message):
+    (tmp_path / name).write_text(text)
+    with pytest.raises(ValueError, match=f"{name}: .*{message}"):
+        io.read_point_cloud(tmp_path / name)
+
+
+def test_scans_with_intensity_colours_counts_and_decimal_commas_read_as_they_are(tmp_path):
+    (tmp_path / "scan.pts").write_text("3\n0.5 0 0 -1200 206 100 100\n1 0 0 20 213 5 5\n0 1 1.5 7 0 0 255\n")
+    pc = io.read_point_cloud(tmp_path / "scan.pts")
+    np.testing.assert_array_equal(pc.points, [[0.5, 0, 0], [1, 0, 0], [0, 1, 1.5]])
+    assert pc.labels is None and pc.normals is None
+    (tmp_path / "comma.xyz").write_text("0,5 1,25 2,125\n-1,5 0,25 3\n")
+    np.testing.assert_array_equal(io.read_point_cloud(tmp_path / "comma.xyz").points, [[0.5, 1.25, 2.125],
+                                                                                        [-1.5, 0.25, 3]])

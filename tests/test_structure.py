@@ -17,8 +17,9 @@ PACKAGE = Path(__file__).resolve().parents[1] / "cuboidlib"
 
 #: cuboidlib's modules from the bottom up. Each line is a layer; a module imports only from the lines above it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("__init__", "_checks", "config", "files", "kernels"),    # plumbing: version, checks, configs, files, C++
-    ("neighbors", "geometry", "normalization", "solids"),     # kNN, cuboid geometry, the unit frame, solids
+    ("__init__", "files"),                                    # version, reading and writing files
+    ("_checks", "config", "kernels", "file_tables"),          # plumbing: checks, configs, C++, text and PLY tables
+    ("neighbors", "geometry", "normalization", "solids", "mesh_files"),  # kNN, cuboids, the unit frame, solids, meshes
     ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
