@@ -145,6 +145,70 @@ def _cuts(local: torch.Tensor, least: int) -> list[torch.Tensor]:
     return [c for c in cuts if least <= int(c.sum()) <= n - least]
 
 
+@dataclass
+class _Slots:
+    """A shape's M cuboid slots during the search: centres (M, 3), rotations R (M, 3, 3) whose columns are the
+    cuboids' axes, half sizes (M, 3) and existence (M,)."""
+
+    centers: torch.Tensor
+    R: torch.Tensor
+    half_sizes: torch.Tensor
+    exists: torch.Tensor
+
+    def copy(self) -> "_Slots":
+        return _Slots(self.centers.clone(), self.R.clone(), self.half_sizes.clone(), self.exists.clone())
+
+
+#: Smallest half size of a cuboid made by a move, in units of the shape's diagonal.
+_FLOOR = 0.005
+
+
+def _merge_moves(points: torch.Tensor, labels: torch.Tensor, slots: _Slots, touch: float) -> list[tuple]:
+    """Every merge of two touching cuboids: ``(slots after it, ("merge", kept slot, freed slot))``."""
+    used = torch.nonzero(slots.exists).flatten().tolist()
+    moves = []
+    for i, a in enumerate(used):
+        pa = points[labels == a]
+        for b in used[i + 1:]:
+            pb = points[labels == b]
+            if len(pa) == 0 or len(pb) == 0 or float(torch.cdist(pa, pb).min()) > touch:
+                continue
+            keep, drop = (a, b) if len(pa) >= len(pb) else (b, a)
+            after = slots.copy()
+            after.centers[keep], after.half_sizes[keep] = _tight_box(torch.cat([pa, pb]), slots.R[keep], _FLOOR)
+            after.exists[drop] = False
+            moves.append((after, ("merge", keep, drop)))
+    return moves
+
+
+def _split_moves(points: torch.Tensor, labels: torch.Tensor, slots: _Slots, least: int) -> list[tuple]:
+    """Every cut of a cuboid into the first free slot: ``(slots after it, ("split", slot, new slot, side))``."""
+    free = torch.nonzero(~slots.exists).flatten()
+    if len(free) == 0:
+        return []
+    new, moves = int(free[0]), []
+    for a in torch.nonzero(slots.exists).flatten().tolist():
+        pa = points[labels == a]
+        if len(pa) < 2 * least:
+            continue
+        for side in _cuts(pa @ slots.R[a], least):
+            after = slots.copy()
+            after.centers[a], after.half_sizes[a] = _tight_box(pa[~side], slots.R[a], _FLOOR)
+            after.centers[new], after.half_sizes[new] = _tight_box(pa[side], slots.R[a], _FLOOR)
+            after.R[new], after.exists[new] = slots.R[a], True
+            moves.append((after, ("split", a, new, side)))
+    return moves
+
+
+def _relabel(labels: torch.Tensor, move: tuple) -> None:
+    """Apply a move's change of the points' slots, in place."""
+    if move[0] == "merge":
+        labels[labels == move[2]] = move[1]
+    else:
+        members = torch.nonzero(labels == move[1]).flatten()
+        labels[members[move[3]]] = move[2]
+
+
 def choose_count(points: torch.Tensor, centers: torch.Tensor, quaternions: torch.Tensor, half_sizes: torch.Tensor,
                  exists: torch.Tensor, labels: torch.Tensor, config: CountConfig = CountConfig()):
     """Split and merge one shape's cuboids by the Chamfer distance (see the module docstring).
@@ -167,82 +231,38 @@ def choose_count(points: torch.Tensor, centers: torch.Tensor, quaternions: torch
         raise ValueError(f"labels must be ({n},) and exists ({m},), got {tuple(labels.shape)} and {tuple(exists.shape)}")
     if n and not bool(exists[labels].all()):
         raise ValueError("every point's label must be an existing slot")
-    dtype = points.dtype
-    centers, half_sizes, labels, exists = centers.clone(), half_sizes.clone(), labels.clone(), exists.clone()
-    R = quaternion_to_rotation_matrix(quaternions.to(dtype), validate=False).clone()  # (M, 3, 3), columns = axes
-    floor = 0.005
+    R = quaternion_to_rotation_matrix(quaternions.to(points.dtype), validate=False)  # (M, 3, 3), columns = axes
+    slots, labels = _Slots(centers.clone(), R.clone(), half_sizes.clone(), exists.clone()), labels.clone()
     least = max(config.min_points, math.ceil(0.005 * n))
-    generator = torch.Generator().manual_seed(config.seed)
-    subset = points[torch.randperm(n, generator=generator)[:config.search_points]]
+    subset = points[torch.randperm(n, generator=torch.Generator().manual_seed(config.seed))[:config.search_points]]
     convention = ChamferConvention(n_samples=config.search_samples)
 
-    def score(candidates: list[tuple]) -> torch.Tensor:
-        """Chamfer distances (B,) of candidate slot sets (centers, R, half sizes, exists), each with the same
-        random stream, so that two candidates differ by their cuboids rather than by their samples."""
-        out = []
-        for c, r, s, e in candidates:
-            q = rotation_matrix_to_quaternion(r, validate=False)
-            out.append(cuboid_chamfer_distance(subset[None], c[None], q[None], s[None], e[None], convention,
-                                               torch.Generator().manual_seed(config.seed)))
-        return torch.cat(out)
+    def score(candidate: _Slots) -> float:
+        """The search's Chamfer distance; every candidate draws its samples from the same seed, so that two
+        candidates differ by their cuboids rather than by their samples."""
+        q = rotation_matrix_to_quaternion(candidate.R, validate=False)
+        return float(cuboid_chamfer_distance(subset[None], candidate.centers[None], q[None], candidate.half_sizes[None],
+                                             candidate.exists[None], convention,
+                                             torch.Generator().manual_seed(config.seed))[0])
 
-    current = float(score([(centers, R, half_sizes, exists)])[0])
-    count_before = int(exists.sum())
-    before, lowest, moves = current, current, {"split": 0, "merge": 0}
+    current = before = lowest = score(slots)
+    count_before, moves = int(slots.exists.sum()), {"split": 0, "merge": 0}
     while moves["split"] + moves["merge"] < config.max_moves:
-        used = torch.nonzero(exists).flatten().tolist()
-        merges, splits = [], []
-        for i, a in enumerate(used):  # merges of touching pairs
-            pa = points[labels == a]
-            for b in used[i + 1:]:
-                pb = points[labels == b]
-                if len(pa) == 0 or len(pb) == 0 or float(torch.cdist(pa, pb).min()) > config.touch:
-                    continue
-                keep, drop = (a, b) if len(pa) >= len(pb) else (b, a)
-                c, s = _tight_box(torch.cat([pa, pb]), R[keep], floor)
-                merges.append((keep, drop, c, s))
-        free = torch.nonzero(~exists).flatten()
-        if len(free):
-            for a in used:  # splits, into the first free slot
-                pa = points[labels == a]
-                if len(pa) < 2 * least:
-                    continue
-                for side in _cuts(pa @ R[a], least):
-                    c0, s0 = _tight_box(pa[~side], R[a], floor)
-                    c1, s1 = _tight_box(pa[side], R[a], floor)
-                    splits.append((a, int(free[0]), side, c0, s0, c1, s1))
-        candidates = []
-        for keep, drop, c, s in merges:
-            cc, ss, ee = centers.clone(), half_sizes.clone(), exists.clone()
-            cc[keep], ss[keep], ee[drop] = c, s, False
-            candidates.append((cc, R, ss, ee))
-        for a, new, side, c0, s0, c1, s1 in splits:
-            cc, rr, ss, ee = centers.clone(), R.clone(), half_sizes.clone(), exists.clone()
-            cc[a], ss[a], cc[new], ss[new], rr[new], ee[new] = c0, s0, c1, s1, R[a], True
-            candidates.append((cc, rr, ss, ee))
-        if not candidates:
-            break
-        scores = score(candidates)
-        best_merge = int(scores[:len(merges)].argmin()) if merges else None
-        best_split = int(scores[len(merges):].argmin()) + len(merges) if splits else None
-        split_ok = best_split is not None and float(scores[best_split]) < current * (1 - config.min_gain)
-        merge_ok = best_merge is not None and float(scores[best_merge]) <= lowest * (1 + config.merge_tolerance)
-        if split_ok:
-            a, new, side, c0, s0, c1, s1 = splits[best_split - len(merges)]
-            members = torch.nonzero(labels == a).flatten()
-            centers[a], half_sizes[a], centers[new], half_sizes[new], R[new], exists[new] = c0, s0, c1, s1, R[a], True
-            labels[members[side]] = new
-            moves["split"] += 1
-            current = float(scores[best_split])
-        elif merge_ok:
-            keep, drop, c, s = merges[best_merge]
-            centers[keep], half_sizes[keep], exists[drop] = c, s, False
-            labels[labels == drop] = keep
-            moves["merge"] += 1
-            current = float(scores[best_merge])
+        splits = [(score(after), after, move) for after, move in _split_moves(points, labels, slots, least)]
+        merges = [(score(after), after, move) for after, move in _merge_moves(points, labels, slots, config.touch)]
+        best_split = min(splits, key=lambda x: x[0], default=None)
+        best_merge = min(merges, key=lambda x: x[0], default=None)
+        if best_split is not None and best_split[0] < current * (1 - config.min_gain):
+            chosen = best_split
+        elif best_merge is not None and best_merge[0] <= lowest * (1 + config.merge_tolerance):
+            chosen = best_merge
         else:
             break
+        current, slots, move = chosen
+        _relabel(labels, move)
+        moves[move[0]] += 1
         lowest = min(lowest, current)
-    record = CountRecord(before=count_before, after=int(exists.sum()), splits=moves["split"], merges=moves["merge"],
-                         chamfer_before=before, chamfer_after=current)
-    return centers, rotation_matrix_to_quaternion(R, validate=False), half_sizes, exists, labels, record
+    record = CountRecord(before=count_before, after=int(slots.exists.sum()), splits=moves["split"],
+                         merges=moves["merge"], chamfer_before=before, chamfer_after=current)
+    quaternions = rotation_matrix_to_quaternion(slots.R, validate=False)
+    return slots.centers, quaternions, slots.half_sizes, slots.exists, labels, record

@@ -24,7 +24,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
     ("results", "runs"),                                      # the result types; a run's bookkeeping
-    ("applications", "baseline", "merging"),                  # networks' uses (Sec. 4.4), k-means boxes, merging
+    ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, counts
     ("fitting", "evaluation"),                                # the per-shape fit, the test-split scores
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
     ("release",),                                             # a trained run -> a committed network and card
