@@ -9,7 +9,8 @@ in the file's own units. For each shape:
 * ``net``: ``abstract(points, category, up="y", check=True)``: its Chamfer distance, its mIoU by the network's
   label transfer, and whether its network-fit check warned (:class:`cuboidlib.abstraction.NetworkFitWarning`);
 * ``refined``: the same with ``refine=--refine`` steps;
-* ``fit``: ``abstract(points, None)``, the per-shape fit with its default settings, and its cuboid count;
+* ``fit``: ``abstract(points, None)``, the per-shape fit with its default settings (``--fit-count portion``:
+  with the paper's count rule), and its cuboid count;
 * ``kmeans``: k-means boxes (:func:`cuboidlib.baseline.fit_cluster_boxes`) with as many boxes as the
   network has cuboids, the best of ``--seeds`` seeds.
 
@@ -48,6 +49,7 @@ from cuboidlib.abstraction import NetworkFitWarning, abstract
 from cuboidlib.applications import load_trained_model
 from cuboidlib.baseline import fit_cluster_boxes
 from cuboidlib.files import write_text_atomic
+from cuboidlib.fitting import FitConfig
 from cuboidlib.evaluation import label_transfer_split
 from cuboidlib.metrics import ChamferConvention, cuboid_chamfer_distance, part_ious, transfer_part_labels
 from cuboidlib.normals import orient_normals
@@ -104,7 +106,8 @@ def run_shape(shape, net, net_points: int, args) -> tuple[dict, dict]:
         pictures["refined"] = ref
     if not args.no_fit:
         start = time.perf_counter()
-        fit = abstract(cloud, None, n_points=N_POINTS, seed=0, up="y")
+        config = None if args.fit_count is None else FitConfig(count=args.fit_count)
+        fit = abstract(cloud, None, n_points=N_POINTS, seed=0, up="y", fit_config=config)
         row["fit"] = {"chamfer": chamfer(points, fit.cuboids_in()), "cuboids": fit.num_existing,
                       "seconds": round(time.perf_counter() - start, 2)}
         pictures["fit"] = fit
@@ -191,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--refine", type=int, default=300, help="refinement steps (default 300)")
     parser.add_argument("--no-refine", dest="refine", action="store_const", const=0, help="no refinement")
     parser.add_argument("--no-fit", action="store_true", help="leave the per-shape fit out")
+    parser.add_argument("--fit-count", choices=("chamfer", "portion"), default=None,
+                        help="the fit's count rule (cuboidlib.fitting.FitConfig.count; default: abstract's, chamfer)")
     parser.add_argument("--seeds", type=int, default=3, help="k-means seeds, the best kept (default 3)")
     parser.add_argument("--json", type=Path, help="write the records and the summary here")
     parser.add_argument("--png", type=Path, help="write one picture per shape into this folder")
