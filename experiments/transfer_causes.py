@@ -37,8 +37,9 @@ The changes (each applied to the same shapes; every input is normalised again, b
   engine, as the real single-engine aircraft have), ``wing_span1.3`` (the wings 1.3 times longer), ``tail_x1.4``
   (fin and stabiliser 1.4 times larger); animals ``thigh_labels`` (the labels only: body points over the hips
   and shoulders, up to 60 % of the body's height, labelled leg, as the real meshes' skins label them; the
-  network's input is unchanged), ``tail_raised`` / ``tail_hanging`` (the tail turned about its root to 60 degrees
-  above / 75 degrees below the horizontal), ``head_x1.4`` (head, snout and ears 1.4 times larger).
+  network's input is unchanged), ``tail_long`` (the tail lengthened about its root to at least 0.3 body lengths,
+  as long as the real tails' lower half), ``tail_raised`` / ``tail_hanging`` (the same, and turned about its root
+  to 60 degrees above / 75 degrees below the horizontal), ``head_x1.4`` (head, snout and ears 1.4 times larger).
 
 A change that touches only the normals is not run for a network that reads no normals (the animals'): its
 row repeats the unchanged one (``same_as_clean``).
@@ -46,9 +47,9 @@ row repeats the unchanged one (``same_as_clean``).
 **Part statistics.** For each category, simple statistics of the labelled points (part shares, overall
 proportions; airplanes: span, root chord, fuselage thickness, tail size, wing height, engine layout; animals:
 leg length and slenderness, how high the leg labels reach up the body, tail angle and length, head position),
-on the procedural test shapes and on the real meshes, both in the networks' frame with box diagonal 1: the
-procedural 5 / 50 / 95th percentiles, the real median, and the share of real shapes outside the procedural
-2.5-97.5 % range. Engine layouts (none, wing, rear fuselage, nose) are counted per shape.
+on the procedural test shapes and on the real meshes, both with 2048 points in the networks' frame with box
+diagonal 1: the procedural 5 / 50 / 95th percentiles, the real median, and the share of real shapes outside the
+procedural 2.5-97.5 % range. Engine layouts (none, wing, rear fuselage, nose) are counted per shape.
 
 **Real meshes** (the reference gap): the shapes of ``benchmarks/real_meshes/manifest.json`` under
 ``--real-root`` folders, 2048 points on every triangle (seed 0), normals oriented as in
@@ -323,21 +324,32 @@ def _thigh_labels(shape: Shape, rng) -> Changed:
     return Changed(p, shape.normals, labels, shape.instances, p)
 
 
-def _tail_turned(angle_deg: float):
-    def apply(shape: Shape, rng) -> Changed:
-        tails = [s for s in shape.parts if s.label == 3]
-        root, end = tails[0].a, tails[-1].b
-        v = end - root
+def turned_tail(parts: list, angle_deg: float | None, ground: float, min_length: float = 0.3) -> list:
+    """An animal's solids with its tail (its capsules) turned rigidly about its root so that the root-to-tip
+    direction lies ``angle_deg`` above the horizontal (None: not turned), and lengthened about its root to at least
+    ``min_length`` body lengths (the real tails' median is 0.41, the procedural 0.22); a tail that would reach below
+    ``ground`` is shortened about its root to end there."""
+    tails = [s for s in parts if s.label == 3]
+    body = parts[0]  # the body ellipsoid, its length along z (shapes._animal)
+    root, end = tails[0].a, tails[-1].b
+    v = end - root
+    turn = np.eye(3)
+    if angle_deg is not None:
         now = math.atan2(v[1], -v[2])  # the tail points backwards (-z): its angle above the horizontal
         turn = rotation_x(angle_deg * _DEG - now)  # rotation_x(+) turns -z towards +y: raises the tail
-        ground = shape.points[:, 1].min()
-        moved = [Capsule(root + (s.a - root) @ turn.T, root + (s.b - root) @ turn.T, s.radius, s.label) for s in tails]
-        low = min(min(c.a[1], c.b[1]) - c.radius for c in moved)
-        if low < ground:  # a hanging tail stops short of the ground: shortened about its root
-            k = (root[1] - ground) / max(root[1] - low, 1e-9)
-            moved = [Capsule(root + (c.a - root) * k, root + (c.b - root) * k, c.radius * k, c.label) for c in moved]
-        solids = [s for s in shape.parts if s.label != 3] + moved
-        return _edited(shape, solids, rng)
+    k = max(1.0, min_length * 2 * body.radii[2] / np.linalg.norm(v))
+    moved = [Capsule(root + k * (s.a - root) @ turn.T, root + k * (s.b - root) @ turn.T, s.radius, s.label)
+             for s in tails]
+    room = [(root[1] - c.radius - ground) / (root[1] - e[1]) for c in moved for e in (c.a, c.b) if e[1] < root[1]]
+    f = max(min([1.0] + room), 0.1)
+    if f < 1:  # every capsule's lowest point at or above the ground
+        moved = [Capsule(root + (c.a - root) * f, root + (c.b - root) * f, c.radius, c.label) for c in moved]
+    return [s for s in parts if s.label != 3] + moved
+
+
+def _tail_turned(angle_deg: float | None):
+    def apply(shape: Shape, rng) -> Changed:
+        return _edited(shape, turned_tail(shape.parts, angle_deg, float(shape.points[:, 1].min())), rng)
     return apply
 
 
@@ -370,6 +382,7 @@ CHANGES: tuple[Change, ...] = (
     Change("wing_span1.3", "proportions and variants", _wing_span(1.3), categories=("airplane",)),
     Change("tail_x1.4", "proportions and variants", _tail_scaled(1.4), categories=("airplane",)),
     Change("thigh_labels", "proportions and variants", _thigh_labels, labels_only=True, categories=("animal",)),
+    Change("tail_long", "proportions and variants", _tail_turned(None), categories=("animal",)),
     Change("tail_raised", "proportions and variants", _tail_turned(60), categories=("animal",)),
     Change("tail_hanging", "proportions and variants", _tail_turned(-75), categories=("animal",)),
     Change("head_x1.4", "proportions and variants", _head_scaled(1.4), categories=("animal",)),
@@ -470,25 +483,19 @@ def _extent(p: np.ndarray, axis: int, lo: float = 1, hi: float = 99) -> float:
     return float(b - a)
 
 
-def _clusters(p: np.ndarray, radius: float) -> list[np.ndarray]:
-    """Index arrays of the groups of points linked by steps shorter than ``radius`` (single linkage)."""
-    parent = np.arange(len(p))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
-    for i, j in zip(*np.nonzero(np.triu(d < radius, 1))):
-        parent[find(i)] = find(j)
-    roots = np.array([find(i) for i in range(len(p))])
-    return [np.nonzero(roots == r)[0] for r in np.unique(roots)]
+def _groups_along_x(p: np.ndarray, gap: float) -> list[np.ndarray]:
+    """Index arrays of the groups of points whose x coordinates follow each other by less than ``gap``."""
+    order = np.argsort(p[:, 0])
+    cuts = np.nonzero(np.diff(p[order, 0]) > gap)[0] + 1
+    return np.split(order, cuts)
 
 
 def engine_layout(p: np.ndarray, labels: np.ndarray) -> str:
-    """"none" or the engine groups by place, e.g. "wing2", "rear2", "nose1": a group at the front tenth of the
-    fuselage is "nose", one behind the wing root within a quarter of the semi-span of the axis "rear", else "wing"."""
+    """"none" or the engine groups by place, e.g. "wing2", "rear2", "nose1". Engines are told apart by their
+    position across the span (groups of engine points whose x coordinates lie less than 0.015 apart, each with at
+    least 5 % of them); a group at the front tenth of the fuselage is "nose" (a propeller's blades may make
+    several: one nose counted), one behind the wing root within a quarter of the semi-span of the axis "rear",
+    else "wing"."""
     body, wing, engine = p[labels == 0], p[labels == 1], p[labels == 3]
     if len(engine) < 3:
         return "none"
@@ -496,7 +503,7 @@ def engine_layout(p: np.ndarray, labels: np.ndarray) -> str:
     root = wing[np.abs(wing[:, 0] - axis_x) < 0.3 * semi]
     trailing = root[:, 2].min() if len(root) else np.median(body[:, 2])
     places = []
-    for group in _clusters(engine, 0.03):
+    for group in _groups_along_x(engine, 0.015):
         if len(group) < max(3, 0.05 * len(engine)):
             continue
         c = engine[group].mean(axis=0)
@@ -506,7 +513,8 @@ def engine_layout(p: np.ndarray, labels: np.ndarray) -> str:
             places.append("rear")
         else:
             places.append("wing")
-    return "+".join(f"{k}{places.count(k)}" for k in ("wing", "rear", "nose") if k in places) or "none"
+    counts = {k: places.count(k) for k in ("wing", "rear")} | {"nose": min(places.count("nose"), 1)}
+    return "+".join(f"{k}{n}" for k, n in counts.items() if n) or "none"
 
 
 def _airplane_stats(P: dict) -> dict:
@@ -659,8 +667,9 @@ def run_category(category: str, n_shapes: int, real_shapes, only) -> dict:
     print(f"== {category}: {path.name}, test shapes {len(indices)} of {len(test)}", flush=True)
     out = {"network": str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path),
            "test_indices": indices, "rows": run_changes(category, model, cfg, base, indices, only)}
-    procedural = [part_stats(category, s.points.astype(np.float64), s.labels) for s in base]
-    out["procedural_layouts"] = _layouts(category, [(s.points, s.labels) for s in base])
+    dense = [make_shape(category, i, 2048, cfg["data_seed"]) for i in indices]  # as many points as the real meshes
+    procedural = [part_stats(category, s.points.astype(np.float64), s.labels) for s in dense]
+    out["procedural_layouts"] = _layouts(category, [(s.points, s.labels) for s in dense])
     if real_shapes:
         shapes, full, kept = real_set(real_shapes, category, cfg["n_points"])
         names = [s.name for s in kept]
