@@ -197,3 +197,43 @@ def test_readme_shows_the_tables_of_the_results(tc):
         block = re.search(rf"<!-- {name}:start -->\n(.*?)\n<!-- {name}:end -->", readme, re.S)
         assert block is not None, name
         assert block.group(1).strip() == "\n".join(lines), name
+
+
+def test_buried_finds_the_points_inside_other_solids_and_the_share_is_thinned(tc):
+    shape = make_shape("airplane", 3, 512, 0)
+    rng = np.random.default_rng(0)
+    p, _, idx = tc.sample_every_face(shape.parts, 3000, rng)
+    inside = tc.buried(shape.parts, p, idx)
+    assert np.array_equal(inside, union_sdf(shape.parts, p) < -1e-4)  # only another solid can hold a point inside
+    out = tc._every_face_at_share(shape, rng, 0.05)
+    assert out.inside.mean() == pytest.approx(0.05, abs=1 / 512)
+    assert np.array_equal(out.inside, tc.buried(shape.parts, out.points, out.instances))
+    full = tc._every_face_at_share(shape, rng, 1.0)  # at most what every-face sampling gives
+    assert full.inside.mean() == pytest.approx(inside.mean(), abs=0.03)
+
+
+def test_enclosed_share_tells_interior_points_from_outer_ones(tc):
+    shape = make_shape("airplane", 3, 2048, 0)
+    rng = np.random.default_rng(0)
+    p, _, idx = tc.sample_every_face(shape.parts, 2048, rng)
+    inside = tc.buried(shape.parts, p, idx)
+    order = np.argsort(~inside)  # interior points first: the estimate reads the first 512
+    assert tc.enclosed_share(shape.points) < 0.03
+    assert tc.enclosed_share(p[order]) > 0.15
+
+
+def test_landing_gear_adds_wheels_below_the_fuselage(tc):
+    shape = make_shape("airplane", 1, 1024, 0)  # no engines
+    out = tc._landing_gear(shape, np.random.default_rng(0))
+    axis, _, rf = tc._fuselage(shape)
+    below = out.points[:, 1] < axis[1] - 1.3 * rf
+    assert below.sum() > 5 and (out.labels[below & (np.abs(out.points[:, 0] - axis[0]) < 2.5 * rf)] == 0).all()
+
+
+def test_thicker_fuselage_keeps_its_length(tc):
+    for index in range(4):  # capsule and cylinder fuselages
+        shape = make_shape("airplane", index, 2048, 0)
+        out = tc._fuselage_scaled(1.4)(shape, np.random.default_rng(0))
+        before, after = shape.points[shape.labels == 0], out.points[out.labels == 0]
+        assert np.ptp(after[:, 2]) == pytest.approx(np.ptp(before[:, 2]), rel=0.03)
+        assert np.ptp(after[:, 1]) == pytest.approx(1.4 * np.ptp(before[:, 1]), rel=0.08)
