@@ -213,12 +213,20 @@ def warnings_of(result) -> list[str]:
 
 
 def frame_of(result) -> str:
-    """The frame a result's shape was read in, e.g. "up z, front -y" (the default: "up y, front z")."""
+    """The frame a result's shape was read in, e.g. "up z, front -y" (the default: "up y, front z"), or with
+    directions in the input's axes when ``--up auto`` found a frame between them: "up (0, 0.7071, 0.7071), ..."."""
     method = result.method or {}
-    chosen = method.get("up_auto", {}).get("chosen")
-    if chosen:
-        return f"up {chosen['up']}, front {chosen['front']}"
-    return f"up {method.get('up', 'y')}, front {method.get('front', 'z')}"
+    chosen = method.get("up_auto", {}).get("chosen") or {"up": method.get("up", "y"), "front": method.get("front", "z")}
+
+    def named(axis) -> str:
+        return axis if isinstance(axis, str) else "(" + ", ".join(f"{c:.4g}" for c in axis) + ")"
+
+    return f"up {named(chosen['up'])}, front {named(chosen['front'])}"
+
+
+#: What decided the frame ``--up auto`` chose (``method["up_auto"]["by"]``, :func:`cuboidlib.frames.choose_frame`).
+_DECIDED_BY = {"axis": "the input's own axes", "ground": "the ground it stands on", "flat": "its flat area",
+               "network": "the network's reconstruction"}
 
 
 def _report(args, result, written: list, seconds: float) -> None:
@@ -229,8 +237,9 @@ def _report(args, result, written: list, seconds: float) -> None:
     if args.quiet:
         return
     if (result.method or {}).get("up_auto"):
-        print(f"--up auto chose {frame_of(result)} (the lowest Chamfer distance of "
-              f"{len(result.method['up_auto']['chamfer'])} frames)")
+        record = result.method["up_auto"]
+        print(f"--up auto chose {frame_of(result)} ({_DECIDED_BY.get(record['by'], record['by'])}; "
+              f"{record['frames']} frames scored)")
     used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
     print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
           f"{result.chamfer:.4g} ({how}; on the normalised shape) | {seconds:.1f} s")
