@@ -10,7 +10,7 @@ make cuboids and a segmentation (a trained network, Sec. 3, or the per-shape fit
 :mod:`cuboidlib.fitting`), measure the Chamfer distance, and give every cuboid the part most of its points
 carry when the input has part labels (Sec. 4.2). The command line's ``fit`` and ``abstract`` are this
 function and :meth:`Abstraction.save`. The input is read and the network loaded once; the orientation
-check scores its six frames in one network pass (:func:`_network_pass`), ``up="auto"`` its frames in two
+check scores its six frames in one network pass (:func:`_network_pass`), and so does ``up="auto"`` its frames
 (:func:`_frame_search`, the geometry in :mod:`cuboidlib.frames`).
 """
 
@@ -28,8 +28,8 @@ from .applications import abstract_shapes, check_latent_statistics, latent_dista
 from .baseline import fit_cluster_boxes
 from .config import resolve_device, torch_threads
 from .fitting import FitConfig, fit_cuboids, tighten_cuboids
-from .frames import (AXES, candidate_frames, choose_frame, coarse_frames, frame_rotation, is_axis_frame,
-                     mirror_normal, refined_frames, turn)
+from .frames import (AXES, YAWS, candidate_frames, choose_frame, frame_rotation, frame_score, is_axis_frame,
+                     mirror_normal, search_frames, turn, yawed_frames)
 from .geometry import Cuboids
 from .io import PointCloud, load_point_cloud, validate_point_cloud
 from .merging import merge_split_cuboids
@@ -40,7 +40,7 @@ from .normals import estimate_normals
 from .results import Abstraction, AbstractionBatch, result_files
 
 __all__ = ["abstract", "frame_rotation", "candidate_frames", "up_axis_scores", "AXES", "REFINE_LR", "OrientationWarning",
-           "ORIENTATION_RATIO", "FRAME_SCORE", "NetworkFitWarning", "REFERENCE_RATIO", "LATENT_DISTANCE", "reference_check_reasons", "Abstraction", "AbstractionBatch", "result_files"]
+           "ORIENTATION_RATIO", "UPSIDE_DOWN_MARGIN", "FRAME_SCORE", "NetworkFitWarning", "REFERENCE_RATIO", "LATENT_DISTANCE", "reference_check_reasons", "Abstraction", "AbstractionBatch", "result_files"]
 
 #: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``):
 #: the fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not.
@@ -86,13 +86,20 @@ FRAME_SCORE = ChamferConvention(n_samples=512)
 FRAME_SCORE_POINTS = 512
 
 
+#: ``abstract(shape, model, up="auto")`` warns (:class:`OrientationWarning`) when the best frame with the up
+#: reversed scores within this margin of the frame kept (:func:`cuboidlib.frames.frame_score`, log units: about
+#: this fraction of the Chamfer distance), measured by ``python benchmarks/bench_rotation.py``.
+UPSIDE_DOWN_MARGIN = 0.05
+
+
 class NetworkFitWarning(UserWarning):
     """``abstract(shape, model)``: the network's cuboids reconstruct the shape much worse than k-means boxes
     with as many boxes (the network does not fit this shape; ``model=None`` fits it without a network)."""
 
 
 class OrientationWarning(UserWarning):
-    """The input seems to use another up axis than the networks' +y (``abstract`` without ``up``)."""
+    """The input seems to use another up axis than the networks' +y (``abstract`` without ``up``), or
+    ``up="auto"`` could hardly tell its up from its down."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -215,33 +222,55 @@ def _frame_scores(pc, net, state, rotations, threshold, centroids, seed):
 
 
 def _frame_search(pc, net, state, front, threshold, centroids, seed):
-    """``up="auto"``: the frame found in two passes of the network (:mod:`cuboidlib.frames`).
+    """``up="auto"``: the frame found in one batched pass of the network, two for a shape with two mirror planes
+    (:mod:`cuboidlib.frames`).
 
     Returns:
         (the rotation kept, (its batch row, its points) for :func:`_by_network`, the ``method["up_auto"]`` record).
     """
-    if front is None:
-        axis, mirror_error = mirror_normal(pc.points, pc.normals)
-        fixed = "side"
-    else:
-        axis, mirror_error, fixed = np.array(AXES[front], dtype=np.float64), None, "front"
-    coarse = coarse_frames(axis, fixed)
-    chamfer, latent, batch, points = _frame_scores(pc, net, state, coarse, threshold, centroids, seed)
-    k = int(np.argmin(chamfer))
-    candidates = refined_frames(pc.points, pc.normals, coarse[k], fixed)
-    chamfer2, latent2, batch2, points2 = _frame_scores(pc, net, state, [c.rotation for c in candidates[1:]],
-                                                       threshold, centroids, seed)
-    chamfer2 = np.concatenate([chamfer[k:k + 1], chamfer2])  # the first candidate is the first pass's best
-    latent2 = None if latent is None else np.concatenate([latent[k:k + 1], latent2])
-    i = choose_frame(candidates, chamfer2, latent2)
-    ran = (batch.item_batch(k), points[k:k + 1]) if i == 0 else (batch2.item_batch(i - 1), points2[i - 1:i])
-    kept = candidates[i].rotation
-    record = {"chosen": _frame_names(kept), "by": candidates[i].kind, "frames": len(coarse) + len(candidates) - 1,
-              "rotation": np.round(kept, 6).tolist(), "chamfer": round(float(chamfer2[i]), 7),
-              "latent_distance": None if latent2 is None else round(float(latent2[i]), 2)}
-    if front is None:
-        record["mirror"] = {"normal": np.round(axis, 6).tolist(), "error": round(mirror_error, 5)}
+    mirror = mirror_normal(pc.points, pc.normals) if front is None else None
+    candidates = search_frames(pc.points, pc.normals, mirror,
+                               None if front is None else np.array(AXES[front], dtype=np.float64))
+    chamfer, latent, batch, points = _frame_scores(pc, net, state, [c.rotation for c in candidates], threshold,
+                                                   centroids, seed)
+    i = choose_frame(candidates, chamfer, latent)
+    score = frame_score(chamfer, latent)
+    kept, by, frames, ran = candidates[i].rotation, candidates[i].kind, len(candidates), (batch.item_batch(i),
+                                                                                          points[i:i + 1])
+    flipped = [score[j] for j, c in enumerate(candidates) if c.rotation[1] @ kept[1] < 0]
+    margin = float(min(flipped) - score[i]) if flipped else None
+    kept_chamfer, kept_latent = float(chamfer[i]), None if latent is None else float(latent[i])
+    if mirror is not None and mirror.second is not None:  # a square table's mirror planes may be its diagonals
+        yawed = yawed_frames(kept)
+        chamfer2, latent2, batch2, points2 = _frame_scores(pc, net, state, yawed, threshold, centroids, seed)
+        frames += len(yawed)
+        score2 = frame_score(chamfer2, latent2)
+        j = int(np.argmin(score2))
+        if score2[j] < score[i]:
+            kept, by, ran = yawed[j], f"{by}, turned {YAWS[j]:g} degrees", (batch2.item_batch(j), points2[j:j + 1])
+            kept_chamfer, kept_latent = float(chamfer2[j]), None if latent2 is None else float(latent2[j])
+    record = {"chosen": _frame_names(kept), "by": by, "frames": frames, "rotation": np.round(kept, 6).tolist(),
+              "chamfer": round(kept_chamfer, 7),
+              "latent_distance": None if kept_latent is None else round(kept_latent, 2),
+              "upside_down_margin": None if margin is None else round(margin, 4)}
+    if mirror is not None:
+        record["mirror"] = {"normal": np.round(mirror.normal, 6).tolist(), "error": round(mirror.error, 5),
+                            "second": None if mirror.second is None else np.round(mirror.second, 6).tolist()}
     return kept, ran, record
+
+
+def _upside_down_warning(result: Abstraction) -> None:
+    """Warn when ``up="auto"`` could hardly tell up from down (:data:`UPSIDE_DOWN_MARGIN`)."""
+    record = result.method["up_auto"]
+    margin = record["upside_down_margin"]
+    if margin is None or margin >= UPSIDE_DOWN_MARGIN:
+        return
+    chosen = record["chosen"]
+    name = result.source or "the shape"
+    warnings.warn(OrientationWarning(
+        f"{name}: up='auto' could hardly tell up from down: the network reconstructs it about as well upside down "
+        f"(score margin {margin:.3f}, below {UPSIDE_DOWN_MARGIN}); it kept up {chosen['up']}, front "
+        f"{chosen['front']} (result.frame): check it, and pass up= and front= if you know them"), stacklevel=4)
 
 
 def _frame_names(rotation: np.ndarray) -> dict:
@@ -495,9 +524,9 @@ def abstract(
             written back in the input's axes. None (default): +y, and with a network a check of the six up
             axes in the same batch (:func:`up_axis_scores`, scores in ``method["up_check"]``) that warns
             (:class:`OrientationWarning`) when another one reconstructs the shape much better; "y" skips the
-            check. "auto" (with a network): the frame is searched, in any rotation (:mod:`cuboidlib.frames`:
-            the mirror plane, 24 frames about it, then the half turns of the best with the ground and the flat
-            area under them, in two batched passes of the network), and recorded in ``method["up_auto"]``:
+            check. "auto" (with a network): the frame is found, in any rotation (:mod:`cuboidlib.frames`: the
+            mirror plane, then the ups of the grounds the shape can stand on and of its flat area, about 10-20
+            frames scored in one batched pass of the network), and recorded in ``method["up_auto"]``:
             ``chosen`` (axis names for an axis frame, else the up and front as directions in the input's axes),
             ``by`` (what decided it), ``rotation`` (R, also ``result.frame``), ``frames`` (how many were scored).
             With ``front`` given, "auto" turns the shape about that axis only.
@@ -572,6 +601,7 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         rotation, ran, record = _frame_search(pc, net, state, front, threshold, centroids, seed)
         result = _by_network(pc, net, state, path, rotation, **one_pass, ran=ran)
         result.method["up_auto"] = record
+        _upside_down_warning(result)
     elif up is not None:
         rotation = frame_rotation(up, front)
         result = _by_network(pc, net, state, path, rotation, **one_pass)

@@ -186,8 +186,8 @@ def _save(args, result, stem: str | None, bar) -> list:
 
 
 def warnings_of(result) -> list[str]:
-    """The warnings of one result, one line each, naming the shape: the orientation check's and the reference
-    check's (:func:`cuboidlib.abstract`).
+    """The warnings of one result, one line each, naming the shape: the orientation check's, ``--up auto``'s when
+    it could hardly tell up from down, and the reference check's (:func:`cuboidlib.abstract`).
 
     Args:
         result: an :class:`~cuboidlib.results.Abstraction`.
@@ -203,6 +203,13 @@ def warnings_of(result) -> list[str]:
         lines.append(f"{name} looks like it is not +y up: with --up {up} the network reconstructs it "
                      f"{scores['y'] / scores[up]:.1f}x better; pass --up {up} (or --up auto), or --up y if it is "
                      "upright")
+    auto = (result.method or {}).get("up_auto", {})
+    if auto.get("upside_down_margin") is not None:
+        from .abstraction import UPSIDE_DOWN_MARGIN  # imports torch: start-up time (already loaded here)
+
+        if auto["upside_down_margin"] < UPSIDE_DOWN_MARGIN:
+            lines.append(f"{name}: --up auto could hardly tell up from down (it kept {frame_of(result)}): check it, "
+                         "and pass --up and --front if you know them")
     ref = (result.method or {}).get("reference_check", {})
     if ref.get("warned"):
         from .abstraction import reference_check_reasons  # imports torch: start-up time (already loaded here)

@@ -4,22 +4,25 @@ The networks were trained upright, so a shape is turned upright before the netwo
 written back in the input's own axes (:class:`cuboidlib.results.Abstraction`'s ``frame``). A frame is named by
 its axes (:func:`frame_rotation`, the 24 of :func:`candidate_frames`) or, for a shape in any rotation, found by
 ``abstract(..., up="auto")``: the geometry of that search is here, the network's scores come from
-:mod:`cuboidlib.abstraction`, which runs it in two batched passes.
+:mod:`cuboidlib.abstraction`, which runs it in one batched pass (two for a shape with two mirror planes).
 
 1. The mirror plane (:func:`mirror_normal`). Chairs, tables, airplanes and four-legged animals are
    symmetric left to right, so the normal of their mirror plane is the side axis x (about a degree off on
    the procedural and the real shapes of ``benchmarks/bench_rotation.py``). The up lies in that plane.
-2. :func:`coarse_frames`: the up every :data:`COARSE_STEP` degrees in that plane, for both signs of x (24
-   frames); the network's best reconstruction is within 15 degrees of upright.
-3. :func:`refined_frames`: that frame's three half turns (up and down, front and back), and for each of the
-   four the up of the ground the shape stands on (:func:`support_up`) and the normal of its flat area
-   (:func:`flat_up`), measured on the points instead of searched. :func:`choose_frame` takes the half turn the
-   network reconstructs best, the Chamfer distance weighed with how unlike its training shapes the network
-   finds the shape (the latent distance tells up from down where the Chamfer distance hardly does, as for
-   airplanes), then in it the ground, else the flat area, when the network reconstructs it nearly as well: the
-   network's own optimum can lie 10-20 degrees off upright on real meshes, where the ground does not.
+2. The ups in that plane are measured, not searched (:func:`search_frames`): the grounds the shape can stand
+   on (:func:`ground_ups`: the edges of its outline seen from the side that the centroid lies above: the line
+   through the feet) and the directions its surface faces most (:func:`flat_ups`: an airplane's wings and
+   fuselage; an airplane's lowest points are no ground, so where the flat area dominates the grounds are not
+   tried). Each up with both signs of x (front and back), and the axis frames near them.
+3. :func:`choose_frame`: the network scores every frame in one batch; the orientation it reconstructs best,
+   its Chamfer distance weighed with how unlike its training shapes the network finds the shape (the latent
+   distance tells up from down where the Chamfer distance hardly does, as for airplanes), and in it an axis frame,
+   else the ground, else the flat area, when the network reconstructs it nearly as well: the network's own
+   optimum can lie 10-20 degrees off upright on real meshes, where the ground does not.
 
-With ``front`` given, the same search turns the shape about that axis instead of the mirror normal.
+A shape with a second mirror plane at right angles (a table) gets the same frames about that plane, then a
+second pass with the frame kept turned by 45 degrees each way (:func:`yawed_frames`). With ``front`` given, the
+ups are measured about that axis instead of the mirror normal.
 """
 
 from __future__ import annotations
@@ -33,21 +36,35 @@ from .neighbors import nearest_index
 from .normalization import normalize
 
 __all__ = ["AXES", "frame_rotation", "default_front", "candidate_frames", "check_rotation", "is_axis_frame", "turn",
-           "mirror_normal", "coarse_frames", "refined_frames", "support_up", "flat_up", "choose_frame", "Candidate",
-           "COARSE_STEP", "LATENT_WEIGHT", "CUE_TOLERANCE", "CUE_ANGLE", "SNAP_DEGREES", "MIRROR_POINTS"]
+           "mirror_normal", "Mirror", "search_frames", "ground_ups", "flat_ups", "yawed_frames", "choose_frame",
+           "frame_score", "Candidate", "GROUND_LINES", "LATENT_WEIGHT", "CUE_TOLERANCE", "CUE_ANGLE",
+           "FLAT_DOMINANCE", "SECOND_MIRROR", "YAWS", "SNAP_DEGREES", "MIRROR_POINTS"]
 
 AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
 
-#: Degrees between the ups of :func:`coarse_frames` (12 ups in the mirror plane, 24 frames with both signs of x).
-COARSE_STEP = 30
+#: At most this many grounds are tried (:func:`ground_ups`), the most stable (a shape seen from the side has
+#: 2-6; the one it stands on was among the 4 most stable on every procedural and real shape measured).
+GROUND_LINES = 6
 #: :func:`choose_frame` ranks the half turns by log(Chamfer) + LATENT_WEIGHT * latent distance (measured by
 #: ``python benchmarks/bench_rotation.py``: the Chamfer distance alone took 2 of 27 real airplanes upside down).
 LATENT_WEIGHT = 0.2
-#: ... and takes the ground's or the flat area's frame when the network's Chamfer distance in it is at most this
-#: many times the best of its half turn.
+#: ... and in that orientation an axis frame, else the ground's, else the flat area's, when the network's Chamfer
+#: distance in it is at most this many times the orientation's best.
 CUE_TOLERANCE = 1.3
-#: The ground and the flat area count when their up lies within this many degrees of the network's best.
-CUE_ANGLE = 25.0
+#: Frames whose ups lie within this many degrees (and side axes within 45) are one orientation.
+CUE_ANGLE = 35.0
+#: The flat area is trusted before the ground, which is then not tried, when the normals' spread along it is at
+#: least this many times their spread across it (airplanes 5.4-22 on the real meshes, chairs and animals at most
+#: 3.8 on both sets: ``python benchmarks/bench_rotation.py``; an airplane's lowest points, engines and tail, are no
+#: ground).
+FLAT_DOMINANCE = 4.5
+#: A second mirror plane at right angles whose error is at most this many times the first's (a table's; an
+#: airplane's wing plane can mirror it nearly as well as its own) is searched too (:func:`search_frames`), and
+#: adds a second pass: the frame kept turned by 45 degrees each way about its up (:func:`yawed_frames`), for a
+#: square table whose mirror planes found are its diagonals.
+SECOND_MIRROR = 1.3
+#: The turns about up of that second pass, in degrees.
+YAWS = (45.0, -45.0)
 #: An axis frame within this many degrees of the ground's or the flat area's frame is tried too, and preferred
 #: in the same way: a file modelled upright in its own axes gets exactly those.
 SNAP_DEGREES = 5.0
@@ -163,7 +180,20 @@ def _mirror_error(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray) 
     return (ref - found).norm(dim=-1).mean(dim=1).numpy()
 
 
-def mirror_normal(points: np.ndarray, normals: np.ndarray, iterations: int = 8) -> tuple[np.ndarray, float]:
+@dataclass
+class Mirror:
+    """The plane a shape is most nearly mirror-symmetric in (:func:`mirror_normal`): its unit ``normal``; its
+    ``error``, the mean distance from the reflected points to the nearest point (a fraction of the diagonal,
+    near the points' spacing for a symmetric shape); and ``second``, the normal of the best candidate plane at
+    right angles to it (made exactly perpendicular) when that plane's error is at most :data:`SECOND_MIRROR`
+    times the first's (a table's two planes; an airplane's wing plane, nearly one), else None."""
+
+    normal: np.ndarray
+    error: float
+    second: np.ndarray | None = None
+
+
+def mirror_normal(points: np.ndarray, normals: np.ndarray, iterations: int = 8) -> Mirror:
     """The normal of the plane the shape is most nearly mirror-symmetric in.
 
     The candidates are the principal axes of the points and of their normals (a mirror plane's normal is one of
@@ -177,8 +207,7 @@ def mirror_normal(points: np.ndarray, normals: np.ndarray, iterations: int = 8) 
         iterations: most refinement steps.
 
     Returns:
-        ``(normal, error)``: the unit normal (3,) float64, and the mean distance from the reflected points to the
-        nearest point (a fraction of the diagonal: near the points' spacing for a symmetric shape).
+        A :class:`Mirror`.
     """
     step = max(1, -(-len(points) // MIRROR_POINTS))
     p = np.asarray(points, dtype=np.float64)[::step]
@@ -189,6 +218,9 @@ def mirror_normal(points: np.ndarray, normals: np.ndarray, iterations: int = 8) 
     errors = _mirror_error(p, axes, offsets)
     k = int(np.argmin(errors))
     normal, offset, error = axes[k], float(offsets[k]), float(errors[k])
+    across = [(e, a) for a, e in zip(axes, errors) if abs(a @ normal) < np.sin(np.radians(30))]
+    second = min(across, key=lambda c: c[0]) if across else None
+    second = second[1] if second is not None and second[0] <= SECOND_MIRROR * error else None
     for _ in range(iterations):
         reflected = _reflected(p, normal, offset)
         nearest = nearest_index(torch.as_tensor(reflected)[None], torch.as_tensor(p)[None])[0].numpy()
@@ -203,7 +235,11 @@ def mirror_normal(points: np.ndarray, normals: np.ndarray, iterations: int = 8) 
         if candidate_error >= error:
             break
         normal, offset, error = candidate, candidate_offset, candidate_error
-    return normal / np.linalg.norm(normal), error
+    normal = normal / np.linalg.norm(normal)
+    if second is not None:
+        second = second - (second @ normal) * normal
+        second = second / np.linalg.norm(second)
+    return Mirror(normal, error, second)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -233,93 +269,23 @@ def _check_fixed(axis, fixed: str) -> np.ndarray:
     return a
 
 
-def coarse_frames(axis: np.ndarray, fixed: str = "side", step: float = COARSE_STEP) -> list[np.ndarray]:
-    """The frames of the first pass: the up every ``step`` degrees about ``axis``.
-
-    Args:
-        axis: (3,) unit vector, the mirror normal (``fixed="side"``) or the given front (``fixed="front"``).
-        fixed: which axis of the course's frame ``axis`` becomes: "side" (x, both signs tried) or "front" (z).
-        step: degrees between the ups.
-
-    Returns:
-        360 / step rotations for "front", twice as many for "side".
-    """
-    axis = _check_fixed(axis, fixed)
-    a, b = _plane_basis(axis)
-    signs = (1.0, -1.0) if fixed == "side" else (1.0,)
-    angles = np.radians(np.arange(0.0, 360.0, step))
-    return [_frame(s * axis, np.cos(t) * a + np.sin(t) * b, fixed) for s in signs for t in angles]
-
-
 @dataclass
 class Candidate:
-    """A frame of the second pass: ``rotation``, ``kind`` ("network": the first pass's best or one of its half
-    turns; "ground", "flat" or "axis") and ``variant``, the half turn it belongs to (0: the first pass's best)."""
+    """A frame the network scores: ``rotation``; ``kind``, what proposed it ("ground", "flat" or "axis"); and
+    ``variant``, the orientation it belongs to (frames with the side axis and the up within :data:`CUE_ANGLE`
+    of each other share one)."""
 
     rotation: np.ndarray
     kind: str
-    variant: int
-
-
-def _variants(fixed: str) -> list[tuple[float, float]]:
-    """(sign of the fixed axis, sign of up) of the half turns: itself, about the front, about x, about up."""
-    return [(1.0, 1.0), (-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0)] if fixed == "side" else [(1.0, 1.0), (1.0, -1.0)]
-
-
-def _nearest_axis_frame(rotation: np.ndarray) -> tuple[np.ndarray, float]:
-    """The axis frame nearest a rotation, and the angle between them in degrees."""
-    best, angle = None, 180.0
-    for up, front in candidate_frames():
-        r = frame_rotation(up, front)
-        a = float(np.degrees(np.arccos(np.clip((np.trace(r @ rotation.T) - 1) / 2, -1.0, 1.0))))
-        if a < angle:
-            best, angle = r, a
-    return best, angle
-
-
-def refined_frames(points: np.ndarray, normals: np.ndarray, rotation: np.ndarray,
-                   fixed: str = "side") -> list[Candidate]:
-    """The frames of the second pass, around the first pass's best.
-
-    Args:
-        points, normals: (N, 3) the shape, normalised, in its own axes.
-        rotation: (3, 3) the first pass's best frame (rows x, up, front).
-        fixed: as in :func:`coarse_frames`: the axis kept ("side": row 0, "front": row 2).
-
-    Returns:
-        Candidates: ``rotation`` itself first, then its half turns (kind "network"), and for each half turn its
-        ground (:func:`support_up`), flat area (:func:`flat_up`) and an axis frame within :data:`SNAP_DEGREES`
-        of either (kinds "ground", "flat", "axis").
-    """
-    rotation = check_rotation(rotation)
-    axis = _check_fixed(rotation[0] if fixed == "side" else rotation[2], fixed)
-    up = rotation[1]
-    out = [Candidate(rotation, "network", 0)]
-    out += [Candidate(_frame(sa * axis, su * up, fixed), "network", v)
-            for v, (sa, su) in enumerate(_variants(fixed)) if v > 0]
-    cues = []
-    for v, (sa, su) in enumerate(_variants(fixed)):
-        for kind, found in (("ground", support_up(points, axis, su * up)), ("flat", flat_up(normals, axis, su * up))):
-            if found is not None:
-                cues.append(Candidate(_frame(sa * axis, found, fixed), kind, v))
-    snapped = []
-    for c in cues:
-        frame, angle = _nearest_axis_frame(c.rotation)
-        if angle <= SNAP_DEGREES and not any(np.allclose(frame, s.rotation) for s in snapped):
-            snapped.append(Candidate(frame, "axis", c.variant))
-    return out + cues + snapped
-
-
-def _in_plane(axis: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(a, b): a the up made perpendicular to axis, b = axis x a."""
-    a = up - (up @ axis) * axis
-    a = a / np.linalg.norm(a)
-    return a, np.cross(axis, a)
+    variant: int = -1
 
 
 def _hull_2d(xy: np.ndarray) -> np.ndarray:
-    """Indices of the convex hull of 2D points, counter-clockwise (Andrew's monotone chain)."""
-    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    """Indices of the convex hull of 2D points, counter-clockwise (Andrew's monotone chain on the points extreme
+    in 360 directions: a hull vertex is missed only where the hull turns by less than a degree)."""
+    t = np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False)
+    extreme = np.unique(np.argmax(np.outer(np.cos(t), xy[:, 0]) + np.outer(np.sin(t), xy[:, 1]), axis=1))
+    order = extreme[np.lexsort((xy[extreme, 1], xy[extreme, 0]))]
 
     def chain(indices) -> list[int]:
         hull: list[int] = []
@@ -336,62 +302,135 @@ def _hull_2d(xy: np.ndarray) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1])
 
 
-def support_up(points: np.ndarray, axis: np.ndarray, up: np.ndarray, within: float = CUE_ANGLE) -> np.ndarray | None:
-    """The up of the ground the shape stands on, seen along ``axis``.
+def ground_ups(points: np.ndarray, axis: np.ndarray, count: int = GROUND_LINES) -> list[np.ndarray]:
+    """The ups of the lines the shape can stand on, seen along ``axis``, most stable first.
 
-    The points are projected along ``axis`` (the mirror normal: the shape seen from its side); the edge of their
-    convex hull below the centroid, along ``-up``, is the ground line through the feet (four legs, a pedestal,
-    hooves), and its normal is the up.
+    The points are projected along ``axis`` (the mirror normal: the shape seen from its side). An edge of their
+    convex hull is a ground the shape can rest on when the centroid lies above it, between its ends (four legs, a
+    pedestal, hooves); its up points from it to the centroid, and its stability is the angle the shape must tip
+    by to fall off it.
 
     Args:
         points: (N, 3) the shape.
-        axis: (3,) unit vector seen along (the up found is perpendicular to it).
-        up: (3,) the approximate up.
-        within: degrees; a ground farther from ``up`` is not one (None).
+        axis: (3,) unit vector seen along; the ups are perpendicular to it.
+        count: at most this many, the most stable.
 
     Returns:
-        (3,) unit up, or None.
+        Unit ups (3,).
     """
-    a, b = _in_plane(axis, np.asarray(up, dtype=np.float64))
+    axis = _check_fixed(axis, "side")
+    a, b = _plane_basis(axis)
     p = np.asarray(points, dtype=np.float64)
     p = p - p.mean(axis=0)
-    xy = np.stack([p @ b, p @ a], axis=1)  # horizontal, vertical; the centroid at the origin
+    xy = np.stack([p @ a, p @ b], axis=1)  # the centroid at the origin
     hull = xy[_hull_2d(xy)]
-    if len(hull) < 3:
-        return None
-    ends = np.roll(hull, -1, axis=0)
-    for v, w in zip(hull, ends):
-        if min(v[0], w[0]) <= 0.0 <= max(v[0], w[0]) and v[0] != w[0]:
-            height = v[1] + (w[1] - v[1]) * (-v[0]) / (w[0] - v[0])
-            if height < 0:  # the edge below the centroid
-                edge = w - v
-                normal = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
-                normal = normal if normal[1] > 0 else -normal
-                found = normal[0] * b + normal[1] * a
-                return found if normal[1] >= np.cos(np.radians(within)) else None
-    return None
+    found = []
+    for v, w in zip(hull, np.roll(hull, -1, axis=0)):
+        edge = w - v
+        length = float(np.linalg.norm(edge))
+        if length == 0:
+            continue
+        t = -float(v @ edge) / length ** 2  # where the perpendicular from the centroid meets the edge
+        if not 0.0 < t < 1.0:
+            continue
+        normal = np.array([-edge[1], edge[0]]) / length
+        height = -float(v @ normal)  # from the edge's line to the centroid, along normal
+        if height < 0:
+            normal, height = -normal, -height
+        found.append((np.arctan2(min(t, 1.0 - t) * length, max(height, 1e-12)), normal[0] * a + normal[1] * b))
+    found.sort(key=lambda f: -f[0])
+    return [u for _, u in found[:count]]
 
 
-def flat_up(normals: np.ndarray, axis: np.ndarray, up: np.ndarray, within: float = CUE_ANGLE) -> np.ndarray | None:
-    """The direction perpendicular to ``axis`` that most of the surface faces (up or down), near ``up``.
+def flat_ups(normals: np.ndarray, axis: np.ndarray) -> tuple[list[np.ndarray], float]:
+    """The directions perpendicular to ``axis`` that most of the surface faces, both ways.
 
-    The principal axis of the normals projected along ``axis``: an airplane's wings and fuselage and a table's
+    The principal axes of the normals projected along ``axis``: an airplane's wings and fuselage and a table's
     top face up and down.
 
     Args:
         normals: (N, 3) unit normals (their sign does not matter).
-        axis, up, within: as in :func:`support_up`.
+        axis: (3,) unit vector.
 
     Returns:
-        (3,) unit up, or None.
+        ``(ups, dominance)``: the first principal axis both ways, and the second too unless the first dominates;
+        and the normals' spread along the first over their spread along the second (:data:`FLAT_DOMINANCE`).
     """
-    a, b = _in_plane(axis, np.asarray(up, dtype=np.float64))
+    axis = _check_fixed(axis, "side")
+    a, b = _plane_basis(axis)
     n = np.asarray(normals, dtype=np.float64)
     flat = np.stack([n @ a, n @ b], axis=1)
-    vectors = np.linalg.eigh(flat.T @ flat)[1].T
-    v = max(vectors, key=lambda e: abs(e[0]))  # the principal direction nearer up
-    v = v if v[0] > 0 else -v
-    return v[0] * a + v[1] * b if v[0] >= np.cos(np.radians(within)) else None
+    values, vectors = np.linalg.eigh(flat.T @ flat)
+    dominance = float(values[1] / max(values[0], 1e-12))
+    ups = [vectors[0, 1] * a + vectors[1, 1] * b]
+    if dominance < FLAT_DOMINANCE:
+        ups.append(vectors[0, 0] * a + vectors[1, 0] * b)
+    return [s * u for u in ups for s in (1.0, -1.0)], dominance
+
+
+def _nearest_axis_frame(rotation: np.ndarray) -> tuple[np.ndarray, float]:
+    """The axis frame nearest a rotation, and the angle between them in degrees."""
+    best, angle = None, 180.0
+    for up, front in candidate_frames():
+        r = frame_rotation(up, front)
+        a = float(np.degrees(np.arccos(np.clip((np.trace(r @ rotation.T) - 1) / 2, -1.0, 1.0))))
+        if a < angle:
+            best, angle = r, a
+    return best, angle
+
+
+def search_frames(points: np.ndarray, normals: np.ndarray, mirror: Mirror | None = None,
+                  front: np.ndarray | None = None) -> list[Candidate]:
+    """The frames the network scores for ``up="auto"``, measured on the shape rather than searched.
+
+    About the mirror normal (as the side axis x, both ways) or the given front: the ups of the grounds the shape
+    can stand on (:func:`ground_ups`, not where the flat area dominates: an airplane's lowest points are no
+    ground) and of its flat area (:func:`flat_ups`); the same about a second mirror plane (a table's other one),
+    and an axis frame within :data:`SNAP_DEGREES` of any of them. Each frame's ``variant`` groups it with the
+    frames of nearly the same orientation.
+
+    Args:
+        points, normals: (N, 3) the shape, normalised, in its own axes.
+        mirror: its mirror plane (:func:`mirror_normal`), or None with ``front``.
+        front: (3,) unit vector the front faces, or None with ``mirror``.
+
+    Returns:
+        Candidates, none two of a kind within 2 degrees of each other.
+    """
+    if (mirror is None) == (front is None):
+        raise ValueError("give either the mirror plane or the front")
+    if mirror is not None:
+        about = [(mirror.normal, "side")] + ([(mirror.second, "side")] if mirror.second is not None else [])
+    else:
+        about = [(_check_fixed(front, "front"), "front")]
+    found: list[Candidate] = []
+
+    def add(candidate: Candidate) -> None:  # unless a frame within 2 degrees is there (an axis frame: of its kind)
+        if all(np.trace(candidate.rotation @ c.rotation.T) < 1.0 + 2.0 * np.cos(np.radians(2.0)) for c in found
+               if candidate.kind != "axis" or c.kind == "axis"):
+            found.append(candidate)
+
+    for axis, fixed in about:
+        flats, dominance = flat_ups(normals, axis)
+        grounds = ground_ups(points, axis) if dominance < FLAT_DOMINANCE else []
+        for kind, ups in (("ground", grounds), ("flat", flats)):
+            for up in ups:
+                for sign in ((1.0, -1.0) if fixed == "side" else (1.0,)):
+                    add(Candidate(_frame(sign * axis, up, fixed), kind))
+    for c in list(found):
+        frame, angle = _nearest_axis_frame(c.rotation)
+        if angle <= SNAP_DEGREES:
+            add(Candidate(frame, "axis"))
+    representatives: list[np.ndarray] = []
+    for c in found:  # the orientations: side axes within 45 degrees and ups within CUE_ANGLE
+        for v, r in enumerate(representatives):
+            if c.rotation[0] @ r[0] > np.cos(np.radians(45)) and c.rotation[1] @ r[1] >= np.cos(np.radians(CUE_ANGLE)):
+                c.variant = v
+                break
+        else:
+            c.variant = len(representatives)
+            representatives.append(c.rotation)
+    return found
 
 
 # ----------------------------------------------------------------------------------------------
@@ -399,16 +438,50 @@ def flat_up(normals: np.ndarray, axis: np.ndarray, up: np.ndarray, within: float
 # ----------------------------------------------------------------------------------------------
 
 
-def choose_frame(candidates: list[Candidate], chamfer: np.ndarray, latent: np.ndarray | None) -> int:
-    """The frame :func:`cuboidlib.abstract` keeps among the second pass's candidates.
-
-    First the half turn: the one whose best frame has the lowest log(Chamfer) + :data:`LATENT_WEIGHT` *
-    latent distance (Chamfer alone without the network's latent statistics). Then in it: an axis frame, else the
-    ground's frame, else the flat area's, the first whose Chamfer distance is at most :data:`CUE_TOLERANCE` times
-    the half turn's best; else the frame with the lowest Chamfer distance.
+def yawed_frames(rotation: np.ndarray, degrees=YAWS) -> list[np.ndarray]:
+    """The frame turned about its up (the course's y) by each angle: the second pass, for a shape with two mirror
+    planes (a square table's mirror planes found may be its diagonals).
 
     Args:
-        candidates: from :func:`refined_frames`.
+        rotation: (3, 3) a frame.
+        degrees: the turns.
+
+    Returns:
+        One rotation per turn.
+    """
+    rotation = check_rotation(rotation)
+    out = []
+    for d in degrees:
+        t = np.radians(d)
+        about_up = np.array([[np.cos(t), 0.0, np.sin(t)], [0.0, 1.0, 0.0], [-np.sin(t), 0.0, np.cos(t)]])
+        out.append(about_up @ rotation)
+    return out
+
+
+def frame_score(chamfer: np.ndarray, latent: np.ndarray | None) -> np.ndarray:
+    """log(Chamfer) + :data:`LATENT_WEIGHT` * latent distance (Chamfer alone when ``latent`` is None): lower is
+    better. The latent distance tells up from down where the Chamfer distance hardly does (airplanes).
+
+    Args:
+        chamfer: (K,) the network's Chamfer distances.
+        latent: (K,) its latent distances, or None.
+
+    Returns:
+        (K,) float64 scores.
+    """
+    score = np.log(np.maximum(np.asarray(chamfer, dtype=np.float64), 1e-300))
+    return score if latent is None else score + LATENT_WEIGHT * np.asarray(latent, dtype=np.float64)
+
+
+def choose_frame(candidates: list[Candidate], chamfer: np.ndarray, latent: np.ndarray | None) -> int:
+    """The frame :func:`cuboidlib.abstract` keeps among the candidates.
+
+    First the orientation (the candidates' ``variant``): the one whose best frame has the lowest
+    :func:`frame_score` (Chamfer and latent distance). Then in it: an axis frame, else the ground's frame, else the
+    flat area's, the first whose Chamfer distance is at most :data:`CUE_TOLERANCE` times the orientation's best.
+
+    Args:
+        candidates: from :func:`search_frames`.
         chamfer: (K,) the network's Chamfer distance in each.
         latent: (K,) the latent distance of each, or None.
 
@@ -416,9 +489,7 @@ def choose_frame(candidates: list[Candidate], chamfer: np.ndarray, latent: np.nd
         The index of the frame kept.
     """
     chamfer = np.asarray(chamfer, dtype=np.float64)
-    score = np.log(np.maximum(chamfer, 1e-300))
-    if latent is not None:
-        score = score + LATENT_WEIGHT * np.asarray(latent, dtype=np.float64)
+    score = frame_score(chamfer, latent)
     variants = sorted({c.variant for c in candidates})
     best = min(variants, key=lambda v: min(score[i] for i, c in enumerate(candidates) if c.variant == v))
     members = [i for i, c in enumerate(candidates) if c.variant == best]
@@ -427,4 +498,4 @@ def choose_frame(candidates: list[Candidate], chamfer: np.ndarray, latent: np.nd
         for i in members:
             if candidates[i].kind == kind and chamfer[i] <= CUE_TOLERANCE * lowest:
                 return i
-    return min(members, key=lambda i: chamfer[i])
+    return min(members, key=lambda i: chamfer[i])  # another kind of candidate

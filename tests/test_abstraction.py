@@ -221,7 +221,7 @@ def test_up_auto_finds_the_frame_of_a_turned_shape_by_the_networks_reconstructio
     auto = cuboidlib.abstract(cloud, model="chair", up="auto")
     assert auto.method["up_auto"]["chosen"] == {"up": "z", "front": "-y"}, "the axis frame itself, not one near it"
     assert auto.method["up_auto"]["by"] == "axis" and np.array_equal(auto.frame, turn.T)  # p_course = R p_input
-    assert 24 < auto.method["up_auto"]["frames"] <= 40
+    assert 0 < auto.method["up_auto"]["frames"] <= 30
     with pytest.warns(OrientationWarning, match=r"with up z the network's cuboids reconstruct it") as caught:
         default = cuboidlib.abstract(cloud, model="chair")
     assert caught[0].filename == __file__, "the warning points at the caller's line"

@@ -7,8 +7,8 @@ import torch
 import cuboidlib
 from cuboidlib.abstraction import Abstraction
 from cuboidlib.export import read_cuboids_json
-from cuboidlib.frames import (check_rotation, coarse_frames, frame_rotation, is_axis_frame, mirror_normal,
-                              refined_frames, turn)
+from cuboidlib.frames import (Mirror, check_rotation, flat_ups, frame_rotation, ground_ups, is_axis_frame,
+                              mirror_normal, search_frames, turn, yawed_frames)
 from cuboidlib.geometry import Cuboids, cuboid_corners, quaternion_to_rotation_matrix, random_quaternions
 from cuboidlib.metrics import ChamferConvention, cuboid_chamfer_distance
 from cuboidlib.shapes import make_shape
@@ -122,26 +122,46 @@ def test_the_mirror_normal_of_a_turned_shape_is_its_side_axis():
     for category, index, seed in (("chair", 17, 4), ("airplane", 4, 5), ("animal", 18, 6)):
         s = make_shape(category, index, n_points=1024)
         Q = random_rotation(seed)
-        normal, error = mirror_normal(s.points @ Q.T, s.normals @ Q.T)
+        mirror = mirror_normal(s.points @ Q.T, s.normals @ Q.T)
         side = Q @ [1.0, 0, 0]
-        assert min(angle(normal, side), angle(-normal, side)) < 3
-        assert error < 0.05
+        assert min(angle(mirror.normal, side), angle(-mirror.normal, side)) < 3
+        assert mirror.error < 0.05
+        if category != "airplane":  # an airplane's wing plane mirrors it nearly as well
+            assert mirror.second is None, "one mirror plane"
+    table = make_shape("table", 17, n_points=1024)
+    mirror = mirror_normal(table.points, table.normals)
+    assert mirror.second is not None and abs(mirror.second @ mirror.normal) < 1e-9 and abs(mirror.second[1]) < 0.05
 
 
-def test_the_candidates_are_rotations_and_an_axis_frame_is_kept_exact():
-    coarse = coarse_frames(np.array([1.0, 0, 0]))
-    assert len(coarse) == 24 and all(np.allclose(r @ r.T, np.eye(3)) and np.linalg.det(r) > 0 for r in coarse)
-    assert len(coarse_frames(np.array([0, 0, 1.0]), "front")) == 12
-    s = make_shape("table", 4, n_points=512)
-    t = np.radians(12)
-    near = np.array([[1.0, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])  # 12 degrees off upright
-    candidates = refined_frames(s.points, s.normals, near, "side")
-    assert candidates[0].kind == "network" and {c.kind for c in candidates} <= {"network", "ground", "flat", "axis"}
-    assert any(c.kind == "axis" and np.allclose(c.rotation, np.eye(3)) for c in candidates), "upright, snapped"
+def test_the_ground_and_the_flat_area_give_the_up_of_an_upright_shape():
+    side = np.array([1.0, 0.0, 0.0])
+    for category, index in (("chair", 17), ("animal", 18), ("table", 4)):
+        s = make_shape(category, index, n_points=1024)
+        grounds = ground_ups(s.points, side)
+        assert 2 <= len(grounds) <= 6
+        assert min(angle(u, np.array([0.0, 1.0, 0.0])) for u in grounds) < 3, f"{category}: the feet's line is one"
+    plane = make_shape("airplane", 4, n_points=1024)
+    ups, dominance = flat_ups(plane.normals, side)
+    assert dominance > 4.5 and len(ups) == 2 and min(angle(u, np.array([0.0, 1.0, 0.0])) for u in ups) < 3
+
+
+def test_the_candidates_are_rotations_grouped_by_orientation_and_an_axis_frame_is_kept_exact():
+    s = make_shape("chair", 17, n_points=1024)
+    candidates = search_frames(s.points, s.normals, mirror_normal(s.points, s.normals))
+    assert {c.kind for c in candidates} <= {"ground", "flat", "axis"} and len(candidates) <= 20
     for c in candidates:
         check_rotation(c.rotation)
+    upright = [c for c in candidates if c.kind == "axis" and np.allclose(c.rotation, np.eye(3))]
+    assert len(upright) == 1, "upright, snapped to the axes"
+    same = [c for c in candidates if c.variant == upright[0].variant]
+    assert all(c.rotation[1] @ [0.0, 1.0, 0.0] > np.cos(np.radians(35)) and c.rotation[0, 0] > 0 for c in same)
+    assert len({c.variant for c in candidates}) >= 4, "up and down, front and back"
+    yawed = yawed_frames(np.eye(3))
+    assert len(yawed) == 2 and all(np.allclose(r[1], [0.0, 1.0, 0.0]) for r in yawed), "turned about up"
     points, shift, scale = turn(s.points, frame_rotation("z"))
     assert scale == 1.0 and not shift.any()
     np.testing.assert_array_equal(points, (s.points.astype(np.float64) @ frame_rotation("z").T).astype(np.float32))
-    with pytest.raises(ValueError, match="fixed must be"):
-        coarse_frames(np.array([1.0, 0, 0]), "up")
+    with pytest.raises(ValueError, match="either the mirror plane or the front"):
+        search_frames(s.points, s.normals)
+    with pytest.raises(ValueError, match="unit 3-vector"):
+        search_frames(s.points, s.normals, Mirror(np.array([1.0, 1.0, 0.0]), 0.0))
