@@ -25,7 +25,8 @@ first 1024, every Chamfer distance is against all 2048, in the file's own units)
 shape), and for the real meshes the file as it is (``file``: its own axes).
 
 Per category, turn and option: the up axis found within 10 degrees (upside down counts as wrong) and upside
-down; the median over shapes of the Chamfer distance over the upright one's (``up="y"`` on the upright shape),
+down (and for ``auto`` how often it warned that up and down scored alike, and how often it was then upside
+down); the median over shapes of the Chamfer distance over the upright one's (``up="y"`` on the upright shape),
 and the median Chamfer distance over the upright median (one category's files share no units: the first is the
 measure for the real meshes); mIoU by label transfer as ``bench_real_meshes.py`` scores it (each cuboid slot named
 by the majority part of its points on a fifth of the category's shapes, seed 0, the others scored), against the
@@ -195,7 +196,8 @@ def run_shape(shape: dict, category: str, net, state, args) -> list[dict]:
             seconds = time.perf_counter() - start + (search_seconds if option not in ("auto", "none") else 0.0)
             rows.append({"turn": turn_name, "option": option, "up_error": round(up_error(rotation, true_up), 2),
                          "chamfer": real_bench.chamfer(target, result.cuboids_in()), "labels": result.labels,
-                         "seconds": round(seconds, 3), "by": (result.method.get("up_auto") or {}).get("by")})
+                         "seconds": round(seconds, 3), "by": (result.method.get("up_auto") or {}).get("by"),
+                         "margin": (result.method.get("up_auto") or {}).get("upside_down_margin")})
     return rows
 
 
@@ -233,6 +235,11 @@ def summarise(records: list[dict], truths: dict, num_slots: int, options) -> dic
                      "ratio_of_medians": round(float(np.median([r["chamfer"] for r in rows]))
                                                / out["upright_median_chamfer"], 4),
                      "seconds_median": round(float(np.median([r["seconds"] for r in rows])), 3)}
+            margins = [(r["margin"], r["up_error"]) for r in rows if r.get("margin") is not None]
+            if margins:  # up='auto': how often it warned that up and down scored alike, and was it wrong then
+                warned = [e for m, e in margins if m < pipeline.UPSIDE_DOWN_MARGIN]
+                entry["warned"] = len(warned)
+                entry["warned_upside_down"] = sum(e > 90 for e in warned)
             if "upright_miou" in out:
                 segs = [(r["labels"], truths[r["shape"]]) for r in rows if truths[r["shape"]] is not None]
                 num_parts = int(max(t.max() for _, t in segs)) + 1
