@@ -35,11 +35,12 @@ upright mIoU. Cost, in the same process on one thread: the median CPU time of ``
 (``up=None``) and ``up="auto"``, taken in turn, and their ratios to the first (CPU time, since the machine is
 shared: wall times are recorded too).
 
-Command (the full run, about an hour on 2 cores; ``--per-category 4 --max-per-category 3 --random 1`` for a look)::
+Command (the full run, about 1.5 hours on 2 busy cores; ``--per-category 4 --max-per-category 3 --random 1`` for a
+look; the roots as in ``benchmarks/real_meshes/README.md``)::
 
     python benchmarks/bench_rotation.py --root diegogb=/work/realsrc/diegogb \\
         --root flightairmap=/work/realsrc/flightairmap --root quaternius=/work/realsrc/quaternius \\
-        --root pyvista=data_samples/real/pyvista --per-category 50 --json benchmarks/results/rotation.json
+        --root pyvista=data_samples/real/pyvista --per-category 40 --json benchmarks/results/rotation.json
 """
 
 from __future__ import annotations

@@ -238,7 +238,8 @@ def _frame_search(pc, net, state, front, threshold, centroids, seed):
     kept, by, frames, ran = candidates[i].rotation, candidates[i].kind, len(candidates), (batch.item_batch(i),
                                                                                           points[i:i + 1])
     flipped = [score[j] for j, c in enumerate(candidates) if c.rotation[1] @ kept[1] < 0]
-    margin = float(min(flipped) - score[i]) if flipped else None
+    chosen = min(score[j] for j, c in enumerate(candidates) if c.variant == candidates[i].variant)
+    margin = float(min(flipped) - chosen) if flipped else None  # how much better the orientation kept scored
     kept_chamfer, kept_latent = float(chamfer[i]), None if latent is None else float(latent[i])
     if mirror is not None and mirror.second is not None:  # a square table's mirror planes may be its diagonals
         yawed = yawed_frames(kept)
