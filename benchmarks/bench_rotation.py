@@ -35,6 +35,12 @@ upright mIoU. Cost, in the same process on one thread: the median CPU time of ``
 (``up=None``) and ``up="auto"``, taken in turn, and their ratios to the first (CPU time, since the machine is
 shared: wall times are recorded too).
 
+``--geometry`` measures instead, on each upright shape and without the network, what the search relies on: the
+mirror normal's angle to the side axis, whether a second mirror plane is found, the flat area's dominance (the
+normals' spread along their first principal axis over the second) and its up's error, and the rank of the ground
+the shape stands on among the grounds tried: the constants of ``cuboidlib.frames`` (``--repeats 0 --json
+benchmarks/results/rotation_geometry.json``).
+
 Command (the full run, about 1.5 hours on 2 busy cores; ``--per-category 4 --max-per-category 3 --random 1`` for a
 look; the roots as in ``benchmarks/real_meshes/README.md``)::
 
@@ -64,7 +70,8 @@ import cuboidlib.abstraction as pipeline  # noqa: E402
 from cuboidlib.applications import load_trained_model  # noqa: E402
 from cuboidlib.dataset import split_indices  # noqa: E402
 from cuboidlib.files import write_text_atomic  # noqa: E402
-from cuboidlib.frames import candidate_frames, frame_rotation, mirror_normal, search_frames  # noqa: E402
+from cuboidlib.frames import (GROUND_LINES, candidate_frames, flat_ups, frame_rotation, ground_ups,  # noqa: E402
+                              mirror_normal, search_frames)
 from cuboidlib.normals import orient_normals  # noqa: E402
 from cuboidlib.shapes import make_shape  # noqa: E402
 
@@ -294,6 +301,35 @@ def cost(repeats: int) -> dict:
     return out
 
 
+def geometry(shape: dict) -> dict:
+    """What the search measures on the upright shape (no network): the mirror normal's angle to x, whether a second
+    plane was found, the flat area's dominance and its up's error, and the rank of the ground it stands on among
+    the grounds tried (None: not among them)."""
+    pc = pipeline._as_point_cloud(np.concatenate([shape["points"], shape["normals"]], axis=1)[:NET_POINTS],
+                                  NET_POINTS, 0)
+    mirror = mirror_normal(pc.points, pc.normals)
+    grounds = ground_ups(pc.points, mirror.normal, count=GROUND_LINES)
+    flats, dominance = flat_ups(pc.normals, mirror.normal)
+    y = np.array([0.0, 1.0, 0.0])
+    rank = next((k for k, u in enumerate(grounds) if np.degrees(np.arccos(np.clip(u @ y, -1, 1))) < 3), None)
+    return {"shape": shape["name"], "mirror_error_degrees": round(float(np.degrees(np.arccos(min(1.0, abs(
+        mirror.normal[0]))))), 2), "second_mirror": mirror.second is not None, "flat_dominance": round(dominance, 2),
+        "flat_up_error": round(float(min(np.degrees(np.arccos(np.clip(u @ y, -1, 1))) for u in flats)), 2),
+        "ground_rank": rank, "grounds": len(grounds)}
+
+
+def geometry_summary(rows: list[dict]) -> dict:
+    dominance = [r["flat_dominance"] for r in rows]
+    ranks = [r["ground_rank"] for r in rows]
+    return {"shapes": len(rows), "mirror_error_median": float(np.median([r["mirror_error_degrees"] for r in rows])),
+            "mirror_within_3": float(np.mean([r["mirror_error_degrees"] < 3 for r in rows])),
+            "second_mirror": int(sum(r["second_mirror"] for r in rows)),
+            "flat_dominance_range": [min(dominance), max(dominance)],
+            "flat_up_within_3": float(np.mean([r["flat_up_error"] < 3 for r in rows])),
+            "ground_found": int(sum(k is not None for k in ranks)),
+            "ground_rank_max": max((k for k in ranks if k is not None), default=None)}
+
+
 def print_summary(source: str, category: str, summary: dict, options) -> None:
     print(f"== {source} {category}: upright mIoU {100 * summary.get('upright_miou', float('nan')):.1f}", flush=True)
     for name, entry in summary.items():
@@ -320,6 +356,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--options", default=",".join(OPTIONS), help=f"comma-separated, of {', '.join(OPTIONS)}")
     parser.add_argument("--repeats", type=int, default=7, help="calls timed per cost measurement (0: no cost)")
     parser.add_argument("--json", type=Path, help="write the summaries and every record here")
+    parser.add_argument("--geometry", action="store_true",
+                        help="instead, what the search measures on each upright shape, no network (the constants of "
+                             "cuboidlib.frames)")
     args = parser.parse_args(argv)
     args.options = [o.strip() for o in args.options.split(",") if o.strip()]
     if any(o not in OPTIONS for o in args.options):
@@ -338,7 +377,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeats:
         doc["cost"] = cost(args.repeats)
     loaded = real_bench.load_real_shapes(roots, n_points=real_bench.N_POINTS, seed=0)[0] if roots else []
-    for source in ("procedural", "real"):
+    if args.geometry:
+        for source in ("procedural", "real"):
+            for category in categories:
+                shapes = (procedural_shapes(category, args.per_category) if source == "procedural"
+                          else real_shapes(loaded, category, args.max_per_category))
+                if shapes:
+                    rows = [geometry(shape) for shape in shapes]
+                    summary = geometry_summary(rows)
+                    doc["summary"].setdefault(source, {})[category] = summary
+                    doc["records"] += [r | {"source": source, "category": category} for r in rows]
+                    print(f"geometry {source} {category}: " + json.dumps(summary), flush=True)
+        args.options = []
+    for source in ("procedural", "real") if not args.geometry else ():
         for category in categories:
             shapes = (procedural_shapes(category, args.per_category) if source == "procedural"
                       else real_shapes(loaded, category, args.max_per_category))
@@ -358,8 +409,9 @@ def main(argv: list[str] | None = None) -> int:
             print_summary(source, category, summary, args.options)
             doc["records"] += [{k: v for k, v in r.items() if k != "labels"} | {"source": source, "category": category}
                                for r in records]
-    doc["overall"] = overall(doc["summary"], args.options)
-    print("overall, up within 10 degrees: " + json.dumps(doc["overall"]), flush=True)
+    if not args.geometry:
+        doc["overall"] = overall(doc["summary"], args.options)
+        print("overall, up within 10 degrees: " + json.dumps(doc["overall"]), flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(args.json, json.dumps(doc, indent=1))

@@ -42,8 +42,9 @@ __all__ = ["AXES", "frame_rotation", "default_front", "candidate_frames", "check
 
 AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
 
-#: At most this many grounds are tried (:func:`ground_ups`), the most stable (a shape seen from the side has
-#: 2-6; the one it stands on was among the 4 most stable on every procedural and real shape measured).
+#: At most this many grounds are tried (:func:`ground_ups`), the most stable: a shape seen from the side has 2-6,
+#: and the one it stands on was among the 4 most stable wherever it was one of them (``python
+#: benchmarks/bench_rotation.py --geometry``: 38 of 40 procedural animals, every chair and table).
 GROUND_LINES = 6
 #: :func:`choose_frame` ranks the half turns by log(Chamfer) + LATENT_WEIGHT * latent distance (measured by
 #: ``python benchmarks/bench_rotation.py``: the Chamfer distance alone took 2 of 27 real airplanes upside down).
@@ -53,10 +54,10 @@ LATENT_WEIGHT = 0.2
 CUE_TOLERANCE = 1.3
 #: Frames whose ups lie within this many degrees (and side axes within 45) are one orientation.
 CUE_ANGLE = 35.0
-#: The flat area is trusted before the ground, which is then not tried, when the normals' spread along it is at
-#: least this many times their spread across it (airplanes 5.4-22 on the real meshes, chairs and animals at most
-#: 3.8 on both sets: ``python benchmarks/bench_rotation.py``; an airplane's lowest points, engines and tail, are no
-#: ground).
+#: The grounds are not tried where the normals' spread along their first principal axis is at least this many
+#: times their spread along the second: an airplane's lowest points, engines and tail, are no ground, and its wings
+#: and fuselage face up and down (``--geometry``: real airplanes 5.4-22, procedural 2.8-15; chairs 1.0-3.3; animals
+#: 1.1-5.4, one of 40 procedural animals above 4.5; tables 1.1-16, whose top is both).
 FLAT_DOMINANCE = 4.5
 #: A second mirror plane at right angles whose error is at most this many times the first's (a table's; an
 #: airplane's wing plane can mirror it nearly as well as its own) is searched too (:func:`search_frames`), and
