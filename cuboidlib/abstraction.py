@@ -10,7 +10,8 @@ make cuboids and a segmentation (a trained network, Sec. 3, or the per-shape fit
 :mod:`cuboidlib.fitting`), measure the Chamfer distance, and give every cuboid the part most of its points
 carry when the input has part labels (Sec. 4.2). The command line's ``fit`` and ``abstract`` are this
 function and :meth:`Abstraction.save`. The input is read and the network loaded once; the orientation
-check and ``up="auto"`` score every candidate frame in one network pass (:func:`_network_pass`).
+check scores its six frames in one network pass (:func:`_network_pass`), and so does ``up="auto"`` its frames
+(:func:`_frame_search`, the geometry in :mod:`cuboidlib.frames`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from .applications import abstract_shapes, check_latent_statistics, latent_dista
 from .baseline import fit_cluster_boxes
 from .config import resolve_device, torch_threads
 from .fitting import FitConfig, fit_cuboids, tighten_cuboids
+from .frames import (AXES, YAWS, candidate_frames, choose_frame, frame_rotation, frame_score, is_axis_frame,
+                     mirror_normal, search_frames, turn, yawed_frames)
 from .geometry import Cuboids
 from .io import PointCloud, load_point_cloud, validate_point_cloud
 from .merging import merge_split_cuboids
@@ -37,7 +40,7 @@ from .normals import estimate_normals
 from .results import Abstraction, AbstractionBatch, result_files
 
 __all__ = ["abstract", "frame_rotation", "candidate_frames", "up_axis_scores", "AXES", "REFINE_LR", "OrientationWarning",
-           "ORIENTATION_RATIO", "FRAME_SCORE", "NetworkFitWarning", "REFERENCE_RATIO", "LATENT_DISTANCE", "reference_check_reasons", "Abstraction", "AbstractionBatch", "result_files"]
+           "ORIENTATION_RATIO", "UPSIDE_DOWN_MARGIN", "FRAME_SCORE", "NetworkFitWarning", "REFERENCE_RATIO", "LATENT_DISTANCE", "reference_check_reasons", "Abstraction", "AbstractionBatch", "result_files"]
 
 #: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``):
 #: the fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not.
@@ -83,60 +86,20 @@ FRAME_SCORE = ChamferConvention(n_samples=512)
 FRAME_SCORE_POINTS = 512
 
 
+#: ``abstract(shape, model, up="auto")`` warns (:class:`OrientationWarning`) when the best frame with the up
+#: reversed scores within this margin of the frame kept (:func:`cuboidlib.frames.frame_score`, log units: about
+#: this fraction of the Chamfer distance), measured by ``python benchmarks/bench_rotation.py``.
+UPSIDE_DOWN_MARGIN = 0.05
+
+
 class NetworkFitWarning(UserWarning):
     """``abstract(shape, model)``: the network's cuboids reconstruct the shape much worse than k-means boxes
     with as many boxes (the network does not fit this shape; ``model=None`` fits it without a network)."""
 
 
 class OrientationWarning(UserWarning):
-    """The input seems to use another up axis than the networks' +y (``abstract`` without ``up``)."""
-
-
-# ----------------------------------------------------------------------------------------------
-# Frames
-# ----------------------------------------------------------------------------------------------
-
-AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
-
-
-def frame_rotation(up: str = "y", front: str | None = None) -> np.ndarray:
-    """The rotation R that takes a shape with axes ``up`` and ``front`` into the course's frame (+y up, facing +z).
-
-    Args:
-        up, front: "x", "y", "z", "-x", "-y" or "-z", at right angles. The default front is +z, or -y for a
-            z-up shape (Blender and many CAD exports), +y for -z up.
-
-    Returns:
-        (3, 3) float64, a signed permutation with ``p_course = R @ p``. Example: ``frame_rotation("z")`` maps
-        (0, 0, 1) to (0, 1, 0) and (0, -1, 0) to (0, 0, 1).
-    """
-    if up not in AXES:
-        raise ValueError(f"up must be one of {', '.join(AXES)}, got {up!r}")
-    if front is None:
-        front = _default_front(up)
-    if front not in AXES:
-        raise ValueError(f"front must be one of {', '.join(AXES)}, got {front!r}")
-    u, f = np.array(AXES[up], dtype=np.float64), np.array(AXES[front], dtype=np.float64)
-    if abs(float(u @ f)) > 0.5:
-        raise ValueError(f"front {front!r} must be perpendicular to up {up!r}")
-    return np.stack([np.cross(u, f), u, f])  # rows: the input axes that become x, y (up) and z (front)
-
-
-def _default_front(up: str) -> str:
-    return {"z": "-y", "-z": "y"}.get(up, "z")
-
-
-def candidate_frames(front: str | None = None) -> list[tuple[str, str]]:
-    """The (up, front) pairs of axes at right angles: all 24, or the 4 with the given ``front``.
-
-    Args:
-        front: an axis of :data:`AXES`, or None.
-
-    Returns:
-        A list of (up, front) pairs of axis names.
-    """
-    pairs = [(u, f) for u in AXES for f in AXES if abs(int(np.dot(AXES[u], AXES[f]))) == 0]
-    return [(u, f) for u, f in pairs if front is None or f == front]
+    """The input seems to use another up axis than the networks' +y (``abstract`` without ``up``), or
+    ``up="auto"`` could hardly tell its up from its down."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -203,12 +166,11 @@ def _check_frame(pc: PointCloud, name: str) -> None:
     check_coordinates(largest if np.isfinite(largest) else float("inf"), name)
 
 
-def _turned(values: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """(N, 3) points or normals in the course's frame. R is a signed permutation, so a normalised cloud
-    stays normalised (bounding box centred, diagonal 1)."""
+def _turned_normals(normals: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(N, 3) normals in the frame R (no normalisation: directions)."""
     if np.allclose(rotation, np.eye(3)):
-        return values
-    return (np.asarray(values, dtype=np.float64) @ rotation.T).astype(np.float32)
+        return normals
+    return (np.asarray(normals, dtype=np.float64) @ rotation.T).astype(np.float32)
 
 
 def _load_network(model, device: str):
@@ -232,27 +194,93 @@ def _chamfer(points: np.ndarray, cuboids: Cuboids, seed: int, convention: Chamfe
 
 def _network_pass(pc: PointCloud, net, state: dict, rotations: list[np.ndarray], threshold: float,
                   centroids: bool) -> tuple[AbstractionBatch, np.ndarray]:
-    """The network's cuboids for the cloud in each frame, in one batch.
+    """The network's cuboids for the cloud in each frame, in one batch, each turned cloud normalised
+    (:func:`cuboidlib.frames.turn`).
 
     Returns:
         (the batch of F results, the (F, N, 3) points that were fed, one frame per row).
     """
-    points = np.stack([_turned(pc.points, r) for r in rotations])
-    normals = np.stack([_turned(pc.normals, r) for r in rotations])
+    points = np.stack([turn(pc.points, r)[0] for r in rotations])
+    normals = np.stack([_turned_normals(pc.normals, r) for r in rotations])
     return abstract_shapes(net, points, threshold, centers_from_allocation=centroids, normals=normals), points
 
 
-def _frame_scores(pc, net, state, frames, threshold, centroids, seed) -> tuple[dict, AbstractionBatch, np.ndarray]:
+def _frame_scores(pc, net, state, rotations, threshold, centroids, seed):
     """The network's results for the cloud turned into each frame, scored.
 
     Returns:
-        ({frame: FRAME_SCORE Chamfer distance}, the batch of results, the (F, N, 3) points fed).
+        (the (F,) FRAME_SCORE Chamfer distances, the (F,) latent distances or None without the checkpoint's
+        latent statistics, the batch of results, the (F, N, 3) points fed).
     """
-    rotations = [frame_rotation(*f) for f in frames]
     batch, points = _network_pass(pc, net, state, rotations, threshold, centroids)
     step = max(1, -(-points.shape[1] // FRAME_SCORE_POINTS))
-    scores = _chamfer(points[:, ::step], batch.cuboids, seed, FRAME_SCORE)
-    return {f: float(c) for f, c in zip(frames, scores)}, batch, points
+    scores = _chamfer(points[:, ::step], batch.cuboids, seed, FRAME_SCORE).cpu().double().numpy()
+    latent = None
+    if "latent_statistics" in state and batch.z is not None:
+        latent = latent_distance(batch.z, state["latent_statistics"]).cpu().double().numpy()
+    return scores, latent, batch, points
+
+
+def _frame_search(pc, net, state, front, threshold, centroids, seed):
+    """``up="auto"``: the frame found in one batched pass of the network, two for a shape with two mirror planes
+    (:mod:`cuboidlib.frames`).
+
+    Returns:
+        (the rotation kept, (its batch row, its points) for :func:`_by_network`, the ``method["up_auto"]`` record).
+    """
+    mirror = mirror_normal(pc.points, pc.normals) if front is None else None
+    candidates = search_frames(pc.points, pc.normals, mirror,
+                               None if front is None else np.array(AXES[front], dtype=np.float64))
+    chamfer, latent, batch, points = _frame_scores(pc, net, state, [c.rotation for c in candidates], threshold,
+                                                   centroids, seed)
+    i = choose_frame(candidates, chamfer, latent)
+    score = frame_score(chamfer, latent)
+    kept, by, frames, ran = candidates[i].rotation, candidates[i].kind, len(candidates), (batch.item_batch(i),
+                                                                                          points[i:i + 1])
+    flipped = [score[j] for j, c in enumerate(candidates) if c.rotation[1] @ kept[1] < 0]
+    chosen = min(score[j] for j, c in enumerate(candidates) if c.variant == candidates[i].variant)
+    margin = float(min(flipped) - chosen) if flipped else None  # how much better the orientation kept scored
+    kept_chamfer, kept_latent = float(chamfer[i]), None if latent is None else float(latent[i])
+    if mirror is not None and mirror.second is not None:  # a square table's mirror planes may be its diagonals
+        yawed = yawed_frames(kept)
+        chamfer2, latent2, batch2, points2 = _frame_scores(pc, net, state, yawed, threshold, centroids, seed)
+        frames += len(yawed)
+        score2 = frame_score(chamfer2, latent2)
+        j = int(np.argmin(score2))
+        if score2[j] < score[i]:
+            kept, by, ran = yawed[j], f"{by}, turned {YAWS[j]:g} degrees", (batch2.item_batch(j), points2[j:j + 1])
+            kept_chamfer, kept_latent = float(chamfer2[j]), None if latent2 is None else float(latent2[j])
+    record = {"chosen": _frame_names(kept), "by": by, "frames": frames, "rotation": np.round(kept, 6).tolist(),
+              "chamfer": round(kept_chamfer, 7),
+              "latent_distance": None if kept_latent is None else round(kept_latent, 2),
+              "upside_down_margin": None if margin is None else round(margin, 4)}
+    if mirror is not None:
+        record["mirror"] = {"normal": np.round(mirror.normal, 6).tolist(), "error": round(mirror.error, 5),
+                            "second": None if mirror.second is None else np.round(mirror.second, 6).tolist()}
+    return kept, ran, record
+
+
+def _upside_down_warning(result: Abstraction) -> None:
+    """Warn when ``up="auto"`` could hardly tell up from down (:data:`UPSIDE_DOWN_MARGIN`)."""
+    record = result.method["up_auto"]
+    margin = record["upside_down_margin"]
+    if margin is None or margin >= UPSIDE_DOWN_MARGIN:
+        return
+    chosen = record["chosen"]
+    name = result.source or "the shape"
+    warnings.warn(OrientationWarning(
+        f"{name}: up='auto' could hardly tell up from down: the network reconstructs it about as well upside down "
+        f"(score margin {margin:.3f}, below {UPSIDE_DOWN_MARGIN}); it kept up {chosen['up']}, front "
+        f"{chosen['front']} (result.frame): check it, and pass up= and front= if you know them"), stacklevel=4)
+
+
+def _frame_names(rotation: np.ndarray) -> dict:
+    """{"up": ..., "front": ...}: axis names for an axis frame, else the directions in the input's axes."""
+    if is_axis_frame(rotation):
+        names = {tuple(v): k for k, v in AXES.items()}
+        return {"up": names[tuple(int(round(c)) for c in rotation[1])],
+                "front": names[tuple(int(round(c)) for c in rotation[2])]}
+    return {"up": np.round(rotation[1], 4).tolist(), "front": np.round(rotation[2], 4).tolist()}
 
 
 def _refined(pc_points, pc_normals, out: AbstractionBatch, steps: int, fit_config, seed: int, progress: bool):
@@ -280,9 +308,10 @@ def _refined(pc_points, pc_normals, out: AbstractionBatch, steps: int, fit_confi
     return AbstractionBatch(tight, fit.labels, W=fit.W), method
 
 
-def _result(pc, cuboids: Cuboids, segmentation: torch.Tensor, points: np.ndarray, rotation: np.ndarray, up: str,
-            front: str | None, method: dict, part_names, source, seed: int) -> Abstraction:
-    """The Abstraction of one shape: its Chamfer distance, its cuboids' part labels and the frame."""
+def _result(pc, cuboids: Cuboids, segmentation: torch.Tensor, points: np.ndarray, rotation: np.ndarray,
+            method: dict, part_names, source, seed: int) -> Abstraction:
+    """The Abstraction of one shape: its Chamfer distance, its cuboids' part labels and the frame. The turned
+    cloud was normalised again in the frame (:func:`cuboidlib.frames.turn`), so the normalisation is composed."""
     convention = ChamferConvention()
     chamfer = float(_chamfer(points[None], cuboids, seed, convention)[0])
     part_labels = None
@@ -292,41 +321,41 @@ def _result(pc, cuboids: Cuboids, segmentation: torch.Tensor, points: np.ndarray
                                            cuboids.num_cuboids, num_parts).numpy()
     identity = np.allclose(rotation, np.eye(3))
     if not identity:
-        method.update(up=up, front=front or _default_front(up))
-    return Abstraction(cuboids, pc.center, pc.scale, points, _turned(pc.normals, rotation), segmentation.numpy(),
-                       part_labels, None if part_names is None else tuple(part_names), chamfer, convention,
-                       source=source, method=method, frame=None if identity else rotation)
+        method.update(_frame_names(rotation))
+    _, shift, scale = turn(pc.points, rotation)  # p_course = (R p - shift) / scale
+    center = np.asarray(pc.center, dtype=np.float64) + pc.scale * (rotation.T @ shift)
+    return Abstraction(cuboids, center, pc.scale * scale, points, _turned_normals(pc.normals, rotation),
+                       segmentation.numpy(), part_labels, None if part_names is None else tuple(part_names), chamfer,
+                       convention, source=source, method=method, frame=None if identity else rotation)
 
 
-def _by_network(pc, net, state, path, up, front, threshold, centroids, refine, fit_config, part_names, source,
+def _by_network(pc, net, state, path, rotation, threshold, centroids, refine, fit_config, part_names, source,
                 seed, progress, merge=None, ran=None) -> Abstraction:
-    """The network's result in one frame, refined and merged if asked; ``ran``: (batch, points) of this frame
-    when the network already ran on it."""
-    rotation = frame_rotation(up, front)
+    """The network's result in one frame (a rotation), refined and merged if asked; ``ran``: (batch, points) of
+    this frame when the network already ran on it."""
     batch, points = ran if ran is not None else _network_pass(pc, net, state, [rotation], threshold, centroids)
     method = {"name": "network", "checkpoint": None if path is None else str(path), "step": state.get("step"),
               "threshold": threshold, "centers": "allocation" if centroids else "predicted", "points": len(pc)}
     if "latent_statistics" in state and batch.z is not None:  # how far the shape lies from the training shapes
         method["latent_distance"] = round(float(latent_distance(batch.z[:1], state["latent_statistics"])[0]), 2)
     if refine:
-        batch, refined = _refined(points[0], _turned(pc.normals, rotation), batch, refine, fit_config, seed, progress)
+        batch, refined = _refined(points[0], _turned_normals(pc.normals, rotation), batch, refine, fit_config, seed, progress)
         method.update(refined)
     if merge is not None:
         before = int(batch.cuboids.existing().sum())
         batch = merge_split_cuboids(batch, max_growth=merge)
         method["merge"] = {"function": "cuboidlib.merging.merge_split_cuboids", "max_growth": merge,
                            "cuboids": {"before": before, "after": int(batch.cuboids.existing().sum())}}
-    return _result(pc, batch.cuboids.to(device="cpu"), batch.labels[0].cpu(), points[0], rotation, up, front,
-                   method, part_names, source, seed)
+    return _result(pc, batch.cuboids.to(device="cpu"), batch.labels[0].cpu(), points[0], rotation, method,
+                   part_names, source, seed)
 
 
-def _by_fitting(pc, up, front, fit_config, part_names, source, seed, progress) -> Abstraction:
+def _by_fitting(pc, rotation, fit_config, part_names, source, seed, progress) -> Abstraction:
     """The result without a network: the per-shape fit of :mod:`cuboidlib.fitting`."""
     config = fit_config if fit_config is not None else FitConfig(seed=seed, count=FIT_COUNT)
     if len(pc) < config.num_cuboids:
         raise ValueError(f"{source or 'shape'}: has {len(pc)} points, fewer than the {config.num_cuboids} cuboids")
-    rotation = frame_rotation(up, front)
-    points, normals = _turned(pc.points, rotation), _turned(pc.normals, rotation)
+    points, normals = turn(pc.points, rotation)[0], _turned_normals(pc.normals, rotation)
     fit = fit_cuboids(points, normals, config, progress=progress)
     method = {"name": "fit", "function": "cuboidlib.fitting.fit_cuboids", "num_cuboids": config.num_cuboids,
               "steps": config.steps, "restarts": config.restarts, "seed": config.seed, "points": len(pc),
@@ -341,8 +370,7 @@ def _by_fitting(pc, up, front, fit_config, part_names, source, seed, progress) -
         before, after = (float(_chamfer(points[None], c, seed, convention)[0]) for c in (cuboids, tight))
         method["tighten"] = {"steps": FIT_TIGHTEN_STEPS, "chamfer": {"fit": round(before, 7), "tightened": round(after, 7)}}
         cuboids = tight if after < before else cuboids
-    return _result(pc, cuboids, fit.labels[0].cpu(), points, rotation, up, front, method, part_names, source,
-                   seed)
+    return _result(pc, cuboids, fit.labels[0].cpu(), points, rotation, method, part_names, source, seed)
 
 
 def _orientation_warning(result: Abstraction, scores: dict[str, float]) -> None:
@@ -427,8 +455,8 @@ def up_axis_scores(shape, model, *, n_points: int | None = None, seed: int = 0, 
     net, state, _ = _load_network(model, device)
     pc = _as_point_cloud(shape, _network_points(n_points, state), seed)
     centroids = _centroids(centers, state)
-    scores, _, _ = _frame_scores(pc, net, state, [(u, _default_front(u)) for u in AXES], threshold, centroids, seed)
-    return {f[0]: c for f, c in scores.items()}
+    scores = _frame_scores(pc, net, state, [frame_rotation(u) for u in AXES], threshold, centroids, seed)[0]
+    return dict(zip(AXES, (float(c) for c in scores)))
 
 
 def _check_sampling(n_points, seed) -> None:
@@ -492,12 +520,17 @@ def abstract(
         part_names: names of the input's part labels, for the JSON.
         device: "cpu", "cuda[:i]" or "auto".
         progress: show the fit's progress bar.
-        up, front: the input's up axis and the way its front faces (:func:`frame_rotation`); the networks
-            were trained +y up, facing +z, and the result is written back in the input's axes. None
-            (default): +y, and with a network a check of the six up axes (:func:`up_axis_scores`, scores in
-            ``method["up_check"]``) that warns (:class:`OrientationWarning`) when another one reconstructs
-            the shape much better; "y" skips the check. "auto" (with a network): the best of the 24 frames,
-            or of the 4 with the given ``front``, recorded in ``method["up_auto"]``.
+        up, front: the input's up axis and the way its front faces, axis names ("x", "y", "z", "-x", "-y",
+            "-z", :func:`frame_rotation`); the networks were trained +y up, facing +z, and the result is
+            written back in the input's axes. None (default): +y, and with a network a check of the six up
+            axes in the same batch (:func:`up_axis_scores`, scores in ``method["up_check"]``) that warns
+            (:class:`OrientationWarning`) when another one reconstructs the shape much better; "y" skips the
+            check. "auto" (with a network): the frame is found, in any rotation (:mod:`cuboidlib.frames`: the
+            mirror plane, then the ups of the grounds the shape can stand on and of its flat area, about 10-20
+            frames scored in one batched pass of the network), and recorded in ``method["up_auto"]``:
+            ``chosen`` (axis names for an axis frame, else the up and front as directions in the input's axes),
+            ``by`` (what decided it), ``rotation`` (R, also ``result.frame``), ``frames`` (how many were scored).
+            With ``front`` given, "auto" turns the shape about that axis only.
         refine: with a network, this many steps of the per-shape fit started from the network's
             cuboids and allocation (``fit_cuboids(start=...)``, default ``FitConfig(lr=REFINE_LR)``):
             tighter cuboids that keep the network's slots, and so its part correspondence. A final phase on
@@ -546,16 +579,14 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         raise ValueError("refine starts the fit from a network's cuboids: give a model (model=None fits from scratch)")
     if model is None and up == "auto":
         raise ValueError("up='auto' chooses the frame by the network's reconstruction: give a model")
-    if up != "auto":
-        frame_rotation("y" if up is None else up, front)  # checks up and front before any work
-    elif front is not None and front not in AXES:
-        raise ValueError(f"front must be one of {', '.join(AXES)}, got {front!r}")
+    _check_frame_options(up, front)
     source = Path(shape).name if isinstance(shape, (str, os.PathLike)) else getattr(shape, "source", None)
 
     if model is None:
         pc = _as_point_cloud(shape, 2048 if n_points is None else n_points, seed)
         _check_part_names(pc, part_names, source)
-        return _by_fitting(pc, "y" if up is None else up, front, fit_config, part_names, source, seed, progress)
+        return _by_fitting(pc, frame_rotation("y" if up is None else up, front), fit_config, part_names, source, seed,
+                           progress)
 
     net, state, path = _load_network(model, device)
     if "latent_statistics" in state:
@@ -567,23 +598,22 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
     centroids = _centroids(centers, state)
     one_pass = dict(threshold=threshold, centroids=centroids, refine=refine, fit_config=fit_config,
                     part_names=part_names, source=source, seed=seed, progress=progress, merge=merge)
-    if up is not None and up != "auto":
-        chosen = (up, front)
-        result = _by_network(pc, net, state, path, up, front, **one_pass)
-    else:
-        frames = candidate_frames(front) if up == "auto" else [(u, _default_front(u)) for u in AXES]
-        scores, batch, points = _frame_scores(pc, net, state, frames, threshold, centroids, seed)
-        chosen = min(scores, key=scores.get) if up == "auto" else ("y", front or _default_front("y"))
-        ran = None
-        if chosen in scores:  # the network already ran in this frame: take its row of the batch
-            k = frames.index(chosen)
-            ran = batch.item_batch(k), points[k:k + 1]
-        result = _by_network(pc, net, state, path, *chosen, **one_pass, ran=ran)
-        if up == "auto":
-            result.method["up_auto"] = {"chosen": {"up": chosen[0], "front": chosen[1]},
-                                        "chamfer": {f"{u} {f}": round(c, 7) for (u, f), c in scores.items()}}
-        else:
-            _orientation_warning(result, {f[0]: c for f, c in scores.items()})
+    if up == "auto":
+        rotation, ran, record = _frame_search(pc, net, state, front, threshold, centroids, seed)
+        result = _by_network(pc, net, state, path, rotation, **one_pass, ran=ran)
+        result.method["up_auto"] = record
+        _upside_down_warning(result)
+    elif up is not None:
+        rotation = frame_rotation(up, front)
+        result = _by_network(pc, net, state, path, rotation, **one_pass)
+    else:  # +y, and the six up axes scored in the same batch
+        rotation = frame_rotation("y", front)
+        checked = [frame_rotation(u) for u in AXES]
+        scores, _, batch, points = _frame_scores(pc, net, state, checked, threshold, centroids, seed)
+        k = next((i for i, r in enumerate(checked) if np.array_equal(r, rotation)), None)
+        ran = None if k is None else (batch.item_batch(k), points[k:k + 1])  # the network already ran in this frame
+        result = _by_network(pc, net, state, path, rotation, **one_pass, ran=ran)
+        _orientation_warning(result, dict(zip(AXES, (float(c) for c in scores))))
     if not (check or fallback) or not _reference_check(result, seed):
         return result
     if result.method.get("up_check", {}).get("suggested"):  # the orientation warning comes first: turn it upright
@@ -592,11 +622,22 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
     if not fallback:
         _reference_warning(result, fell_back=False)
         return result
-    fit = _by_fitting(pc, *chosen, None, part_names, source, seed, progress)
+    fit = _by_fitting(pc, rotation, None, part_names, source, seed, progress)
     fit.method["fallback"] = {"network": {k: v for k, v in result.method.items() if k != "reference_check"},
                               "reference_check": result.method["reference_check"]}
     _reference_warning(fit, fell_back=True)
     return fit
+
+
+def _check_frame_options(up, front) -> None:
+    """``up`` and ``front`` of :func:`abstract`, checked before any work."""
+    names = ", ".join(repr(a) for a in AXES)
+    if up is not None and not (isinstance(up, str) and (up == "auto" or up in AXES)):
+        raise ValueError(f"up must be None (+y, checked), 'auto' (searched) or an axis: {names}; got {up!r}")
+    if front is not None and not (isinstance(front, str) and front in AXES):
+        raise ValueError(f"front must be None or an axis: {names}; got {front!r}")
+    if up != "auto":
+        frame_rotation("y" if up is None else up, front)  # up and front at right angles
 
 
 def _check_part_names(pc, part_names, source) -> None:

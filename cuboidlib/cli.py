@@ -512,8 +512,8 @@ def _add_shape_options(p) -> None:
     p.add_argument("--up", choices=("x", "y", "z", "-x", "-y", "-z", "auto"),
                    help="the input's up axis (default: y, and abstract warns when another axis fits the network "
                    "much better; many CAD and scan files use z); results are written back in the input's axes. "
-                   "auto (abstract only): try every frame and keep the one the network reconstructs best, and say "
-                   "which")
+                   "auto (abstract only): find the frame in any rotation (the mirror plane, then the network's "
+                   "reconstruction, the ground and the flat area; cuboidlib.frames), and say which")
     p.add_argument("--front", choices=("x", "y", "z", "-x", "-y", "-z"),
                    help="the direction the input's front faces (default: z, or -y when --up z)")
     p.add_argument("--part-names", type=_part_names, metavar="NAMES",

@@ -186,8 +186,8 @@ def _save(args, result, stem: str | None, bar) -> list:
 
 
 def warnings_of(result) -> list[str]:
-    """The warnings of one result, one line each, naming the shape: the orientation check's and the reference
-    check's (:func:`cuboidlib.abstract`).
+    """The warnings of one result, one line each, naming the shape: the orientation check's, ``--up auto``'s when
+    it could hardly tell up from down, and the reference check's (:func:`cuboidlib.abstract`).
 
     Args:
         result: an :class:`~cuboidlib.results.Abstraction`.
@@ -203,6 +203,13 @@ def warnings_of(result) -> list[str]:
         lines.append(f"{name} looks like it is not +y up: with --up {up} the network reconstructs it "
                      f"{scores['y'] / scores[up]:.1f}x better; pass --up {up} (or --up auto), or --up y if it is "
                      "upright")
+    auto = (result.method or {}).get("up_auto", {})
+    if auto.get("upside_down_margin") is not None:
+        from .abstraction import UPSIDE_DOWN_MARGIN  # imports torch: start-up time (already loaded here)
+
+        if auto["upside_down_margin"] < UPSIDE_DOWN_MARGIN:
+            lines.append(f"{name}: --up auto could hardly tell up from down (it kept {frame_of(result)}): check it, "
+                         "and pass --up and --front if you know them")
     ref = (result.method or {}).get("reference_check", {})
     if ref.get("warned"):
         from .abstraction import reference_check_reasons  # imports torch: start-up time (already loaded here)
@@ -213,12 +220,20 @@ def warnings_of(result) -> list[str]:
 
 
 def frame_of(result) -> str:
-    """The frame a result's shape was read in, e.g. "up z, front -y" (the default: "up y, front z")."""
+    """The frame a result's shape was read in, e.g. "up z, front -y" (the default: "up y, front z"), or with
+    directions in the input's axes when ``--up auto`` found a frame between them: "up (0, 0.7071, 0.7071), ..."."""
     method = result.method or {}
-    chosen = method.get("up_auto", {}).get("chosen")
-    if chosen:
-        return f"up {chosen['up']}, front {chosen['front']}"
-    return f"up {method.get('up', 'y')}, front {method.get('front', 'z')}"
+    chosen = method.get("up_auto", {}).get("chosen") or {"up": method.get("up", "y"), "front": method.get("front", "z")}
+
+    def named(axis) -> str:
+        return axis if isinstance(axis, str) else "(" + ", ".join(f"{c:.4g}" for c in axis) + ")"
+
+    return f"up {named(chosen['up'])}, front {named(chosen['front'])}"
+
+
+#: What decided the frame ``--up auto`` chose (``method["up_auto"]["by"]``, :func:`cuboidlib.frames.choose_frame`).
+_DECIDED_BY = {"axis": "the input's own axes", "ground": "the ground it stands on", "flat": "its flat area",
+               "network": "the network's reconstruction"}
 
 
 def _report(args, result, written: list, seconds: float) -> None:
@@ -229,8 +244,9 @@ def _report(args, result, written: list, seconds: float) -> None:
     if args.quiet:
         return
     if (result.method or {}).get("up_auto"):
-        print(f"--up auto chose {frame_of(result)} (the lowest Chamfer distance of "
-              f"{len(result.method['up_auto']['chamfer'])} frames)")
+        record = result.method["up_auto"]
+        print(f"--up auto chose {frame_of(result)} ({_DECIDED_BY.get(record['by'], record['by'])}; "
+              f"{record['frames']} frames scored)")
     used, how = result.num_existing, result.chamfer_convention.describe().split(": ", 1)[1]
     print(f"{used} cuboid{'' if used == 1 else 's'} used of {result.cuboids.num_cuboids} | Chamfer distance "
           f"{result.chamfer:.4g} ({how}; on the normalised shape) | {seconds:.1f} s")

@@ -21,6 +21,7 @@ from .export import (
     write_cuboids_json,
     write_segmented_point_cloud,
 )
+from .frames import check_rotation
 from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention
 from .viz import plot_cuboids_plotly
@@ -111,8 +112,9 @@ class Abstraction:
         part_labels: (M,) each cuboid's semantic part, -1 unknown, or None; part_names: their names.
         chamfer, chamfer_convention: the Chamfer distance on the normalised shape and how it was measured.
         source: the input file's name; method: a dict of JSON types saying how the cuboids were made.
-        frame: (3, 3) the rotation R with p_course = R @ p (:func:`cuboidlib.abstraction.frame_rotation`),
-            or None for the identity.
+        frame: (3, 3) the rotation R with p_course = R @ p, any rotation (an axis frame,
+            :func:`cuboidlib.frames.frame_rotation`, or the one ``abstract(..., up="auto")`` found), or None for
+            the identity.
 
     Example::
 
@@ -139,9 +141,7 @@ class Abstraction:
         if not isinstance(self.cuboids, Cuboids) or self.cuboids.batch_size != 1:
             raise ValueError("Abstraction.cuboids must be a Cuboids batch holding ONE shape (1, M, ...)")
         if self.frame is not None:
-            self.frame = np.asarray(self.frame, dtype=np.float64)
-            if self.frame.shape != (3, 3) or not np.allclose(self.frame @ self.frame.T, np.eye(3), atol=1e-6):
-                raise ValueError("Abstraction.frame must be a 3 x 3 rotation matrix")
+            self.frame = check_rotation(self.frame, "Abstraction.frame")
 
     def _to_input_axes(self, cuboids: Cuboids) -> Cuboids:
         """Normalised cuboids of the course frame (+y up) -> normalised cuboids in the input's axes."""

@@ -75,3 +75,19 @@ def test_bench_training_prints_each_layout_with_the_variables_it_was_given():
     assert re.search(r"^\s+1x1\s+none\s+[\d.]+\s+[\d.]+\s+1\.00x$", proc.stdout, re.M), proc.stdout
     bad = subprocess.run([sys.executable, script, "--env", "OMP_WAIT_POLICY"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "expected NAME=VALUE" in bad.stderr
+
+
+def test_bench_rotation_scores_each_option_on_turned_shapes_and_writes_its_json(tmp_path):
+    out = tmp_path / "rotation.json"
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_rotation.py"), "--per-category", "2",
+                           "--categories", "chair", "--random", "1", "--repeats", "0", "--options", "none,auto",
+                           "--json", str(out)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(r"^\s+yaw 45\s+none \d+% [\d.]+x mIoU [-+][\d.]+ \| auto \d+% [\d.]+x", proc.stdout, re.M), proc.stdout
+    import json
+
+    doc = json.loads(out.read_text())
+    summary = doc["summary"]["procedural"]["chair"]
+    assert set(summary) >= {"upright_miou", "yaw 0", "yaw 180", "random"}
+    assert summary["random"]["auto"]["up_within_10"] == 1.0, "two test chairs turned at random, found"
+    assert {r["option"] for r in doc["records"]} == {"upright", "none", "auto"}

@@ -20,11 +20,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__", "files"),                                    # version, reading and writing files
     ("_checks", "config", "kernels", "file_tables"),          # plumbing: checks, configs, C++, text and PLY tables
     ("neighbors", "geometry", "normalization", "solids", "mesh_files"),  # kNN, cuboids, the unit frame, solids, meshes
-    ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast"),  # Eq. (5), scores, procedural shapes
+    ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast", "frames"),  # Eq. (5), scores, shapes, frames
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
     ("results", "runs"),                                      # the result types; a run's bookkeeping
-    ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, counts
+    ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, the count
     ("fitting", "evaluation"),                                # the per-shape fit, the test-split scores
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
     ("release",),                                             # a trained run -> a committed network and card
