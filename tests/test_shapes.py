@@ -1,3 +1,5 @@
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -6,6 +8,43 @@ from cuboidlib.shapes import CATEGORIES, PART_NAMES, STRUCTURES, ShapeCollection
 from cuboidlib.solids import union_sdf
 
 N_SHAPES = 6  # per category, for the per-point geometric checks
+
+#: The generator's shapes 0, 1, 2, 7 and 42 of seed 0, hashed by :func:`fingerprint`: the parts of ``build_parts``
+#: (rounded to 1e-6) and 256 points of ``make_shape`` (points rounded to 1e-5, normals to 1e-4, labels and
+#: instances exact). Computed before the generator was split by category, with
+#: ``python -c "from tests.test_shapes import fingerprint; print(fingerprint('chair'))"`` (and so on per category)
+#: from the repository root; version 1 must keep them for ever.
+VERSION_1_FINGERPRINTS = {
+    "chair": "05e39f99213c60a2fbc10b37e4eda7a170562f598f66e9fc275c10efe91e9a50",
+    "table": "411f6b0be70f1fc9ce638e4fe9447725a0c54cd76f920ef5157fc9a77a253bde",
+    "airplane": "b5650c7613277b0fff71e03e70e656321352151146d735fc312e9fc90b7030d9",
+    "animal": "fc8710603f3d923b831d2095303d2c6b618b9cd127fb422508ed0bbd35658f9f",
+}
+FINGERPRINT_INDICES = (0, 1, 2, 7, 42)
+
+
+def _digest(h, a, decimals=None) -> None:
+    a = np.asarray(a)
+    if decimals is not None:  # rounded, so that another CPU's last bits do not change the hash
+        a = np.round(a.astype(np.float64), decimals) + 0.0  # + 0.0: -0.0 and 0.0 hash alike
+    h.update(np.ascontiguousarray(a).tobytes())
+
+
+def fingerprint(category: str, **version) -> str:
+    """sha256 of the parts and of 256 sampled points of shapes FINGERPRINT_INDICES (seed 0) of ``category``."""
+    h = hashlib.sha256()
+    for i in FINGERPRINT_INDICES:
+        solids, structure, sid = shapes.build_parts(category, i, 0, **version)
+        h.update(f"{structure}|{sid}".encode())
+        for p in solids:
+            h.update(f"{type(p).__name__}|{p.label}".encode())
+            for k, v in sorted(vars(p).items()):
+                if not k.startswith("_") and k != "label":
+                    _digest(h, np.asarray(v, np.float64), 6)
+        s = make_shape(category, i, 256, 0, **version)
+        for a, decimals in ((s.points, 5), (s.normals, 4), (s.labels, None), (s.instances, None)):
+            _digest(h, a, decimals)
+    return h.hexdigest()
 
 
 @pytest.fixture(scope="module")
@@ -18,6 +57,11 @@ def _own_part(shape, i_point):
     p = shape.points[i_point].astype(np.float64)[None]
     cands = [j for j, s in enumerate(shape.parts) if s.label == shape.labels[i_point]]
     return min(cands, key=lambda j: abs(shape.parts[j].sdf(p)[0]))
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_version_1_shapes_keep_their_fingerprint(category):
+    assert fingerprint(category) == VERSION_1_FINGERPRINTS[category]
 
 
 def test_part_names_and_structures_follow_the_paper_categories():
