@@ -7,7 +7,14 @@ surface, with an outward normal and a part label (``PART_NAMES``) per point. Eac
 its optional parts (``structure``) and a coarse group for clustering (``structure_id``, an index into
 ``STRUCTURES``). Shapes are normalised as in :mod:`cuboidlib.normalization`. Shape i of a collection
 comes from a generator seeded with (seed, category, i), so a prefix of a larger collection equals the
-smaller one; collections are cached as npz, keyed by their arguments and :data:`GENERATOR_VERSION`.
+smaller one; collections are cached as npz, keyed by their arguments and the generator's version.
+
+**Versions.** ``version`` (of :func:`build_parts`, :func:`make_shape`, :func:`make_collection`) picks the
+generator: 1 makes the shapes that the committed networks were trained on, bit for bit, for ever; 2
+(:data:`GENERATOR_VERSION`, the default) adds what the real meshes of ``benchmarks/real_meshes/`` show and
+version 1 lacks (``experiments/transfer_causes.py``): light aircraft and fixed landing gear
+(:mod:`cuboidlib.shapes_airplane`), thighs labelled leg, posed tails and wider bodies
+(:mod:`cuboidlib.shapes_animal`). Chairs and tables are the same in both versions.
 """
 
 from __future__ import annotations
@@ -24,8 +31,8 @@ import trimesh
 
 from ._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES, check_size
 from .normalization import normalize
-from .shapes_airplane import airplane
-from .shapes_animal import animal
+from .shapes_airplane import airplane_v1, airplane_v2
+from .shapes_animal import animal_v1, animal_v2
 from .shapes_chair import chair
 from .shapes_table import table
 from .solids import Solid, sample_union_surface
@@ -35,6 +42,8 @@ __all__ = [
     "PART_NAMES",
     "STRUCTURES",
     "GENERATOR_VERSION",
+    "GENERATOR_VERSIONS",
+    "check_generator_version",
     "PART_COLORS",
     "Shape",
     "ShapeCollection",
@@ -61,12 +70,16 @@ PART_NAMES: dict[str, tuple[str, ...]] = {
 STRUCTURES: dict[str, tuple[str, ...]] = {
     "chair": ("legs4", "legs4+arms", "pedestal", "pedestal+arms", "sled", "sled+arms"),
     "table": ("legs4-rect", "legs4-round", "pedestal-rect", "pedestal-round", "trestle"),
-    "airplane": ("engines0", "engines0+t-tail", "engines2", "engines2+t-tail", "engines4", "engines4+t-tail"),
+    "airplane": ("engines0", "engines0+t-tail", "engines2", "engines2+t-tail", "engines4", "engines4+t-tail",
+                 "propeller"),  # propeller: light aircraft, generator version 2 only
     "animal": ("standard", "long-neck", "low-long", "stocky"),
 }
 
-#: Bumped whenever generated shapes change, so stale cache files are never reused.
-GENERATOR_VERSION = 1
+#: The generators, oldest first. A version's shapes never change; a change of the shapes is a new version.
+GENERATOR_VERSIONS: tuple[int, ...] = (1, 2)
+
+#: The default generator: the newest.
+GENERATOR_VERSION = GENERATOR_VERSIONS[-1]
 
 #: RGB colours of part labels 0, 1, 2, 3 in figures (and in exported sample meshes).
 PART_COLORS: tuple[tuple[float, float, float], ...] = (
@@ -76,11 +89,12 @@ PART_COLORS: tuple[tuple[float, float, float], ...] = (
     (0.839, 0.153, 0.157),
 )
 
-_GENERATORS: dict[str, Callable[[np.random.Generator], tuple[list[Solid], str, str]]] = {
-    "chair": chair,
-    "table": table,
-    "airplane": airplane,
-    "animal": animal,
+#: The generator of each (category, version); chairs and tables are the same in every version.
+_GENERATORS: dict[tuple[str, int], Callable[[np.random.Generator], tuple[list[Solid], str, str]]] = {
+    ("chair", 1): chair, ("chair", 2): chair,
+    ("table", 1): table, ("table", 2): table,
+    ("airplane", 1): airplane_v1, ("airplane", 2): airplane_v2,
+    ("animal", 1): animal_v1, ("animal", 2): animal_v2,
 }
 
 
@@ -93,19 +107,39 @@ def _check_category(category: str) -> str:
     return category
 
 
+def check_generator_version(version) -> int:
+    """The generator version, checked.
+
+    Args:
+        version: one of :data:`GENERATOR_VERSIONS`.
+
+    Returns:
+        ``version`` as an int.
+
+    Raises:
+        ValueError: another value (a bool, a float, an unknown number).
+    """
+    if isinstance(version, bool) or not isinstance(version, (int, np.integer)) or int(version) not in GENERATOR_VERSIONS:
+        raise ValueError(f"generator version must be one of {GENERATOR_VERSIONS} (1: the shapes the committed networks "
+                         f"were trained on; {GENERATOR_VERSION}: the newest), got {version!r}")
+    return int(version)
+
+
 def _shape_rng(category: str, index: int, seed: int) -> np.random.Generator:
     if seed < 0 or index < 0:
         raise ValueError(f"seed and index must be non-negative integers, got seed={seed}, index={index}")
     return np.random.default_rng([int(seed), CATEGORIES.index(category), int(index)])
 
 
-def build_parts(category: str, index: int, seed: int = 0) -> tuple[list[Solid], str, int]:
+def build_parts(category: str, index: int, seed: int = 0,
+                version: int = GENERATOR_VERSION) -> tuple[list[Solid], str, int]:
     """The parts of shape ``index`` of a collection, before sampling and normalisation.
 
     Args:
         category: one of :data:`CATEGORIES`.
         index: the shape's index in the collection, >= 0.
         seed: the collection's seed, >= 0.
+        version: the generator, one of :data:`GENERATOR_VERSIONS` (1: the committed networks' shapes).
 
     Returns:
         ``(solids, structure, structure_id)``: the solids in generator units (metres), each labelled
@@ -114,7 +148,8 @@ def build_parts(category: str, index: int, seed: int = 0) -> tuple[list[Solid], 
         ``STRUCTURES[category]``.
     """
     _check_category(category)
-    solids, structure, coarse = _GENERATORS[category](_shape_rng(category, index, seed))
+    version = check_generator_version(version)
+    solids, structure, coarse = _GENERATORS[category, version](_shape_rng(category, index, seed))
     return solids, structure, STRUCTURES[category].index(coarse)
 
 
@@ -165,8 +200,8 @@ class Shape:
         return mesh
 
 
-def _sample_shape(category: str, index: int, seed: int, n_points: int):
-    solids, structure, sid = build_parts(category, index, seed)
+def _sample_shape(category: str, index: int, seed: int, n_points: int, version: int):
+    solids, structure, sid = build_parts(category, index, seed, version)
     rng = np.random.default_rng([int(seed), CATEGORIES.index(category), int(index), 1])  # sampling stream
     p, nn, idx = sample_union_surface(solids, n_points, rng)
     labels = np.array([s.label for s in solids])[idx]
@@ -174,7 +209,8 @@ def _sample_shape(category: str, index: int, seed: int, n_points: int):
     return solids, structure, sid, p, nn, labels, idx, center, scale
 
 
-def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 0) -> Shape:
+def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 0,
+               version: int = GENERATOR_VERSION) -> Shape:
     """Generate shape ``index`` of the collection ``(category, seed)``, with its analytic parts.
 
     Args:
@@ -182,14 +218,17 @@ def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 
         index: the shape's index in the collection.
         n_points: N, points sampled on its surface.
         seed: the collection's seed.
+        version: the generator, one of :data:`GENERATOR_VERSIONS`.
 
     Returns:
         A :class:`Shape` equal to entry ``index`` of ``make_collection(category, n, n_points, seed)``
         for any ``n > index``, plus its parts (for meshes and exact inside/outside tests).
     """
     _check_category(category)
+    version = check_generator_version(version)
     n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
-    solids, structure, sid, p, nn, labels, instances, center, scale = _sample_shape(category, index, seed, n_points)
+    solids, structure, sid, p, nn, labels, instances, center, scale = _sample_shape(category, index, seed, n_points,
+                                                                                           version)
     return Shape(
         category=category,
         points=p.astype(np.float32),
@@ -216,6 +255,7 @@ class ShapeCollection:
         seed: the collection's seed.
         instances: (S, N) int64 part instances (each point's solid, as in :attr:`Shape.instances`), or None
             for a collection file written without them.
+        generator_version: the generator that made it (a file written without it: 1).
     """
 
     category: str
@@ -226,6 +266,7 @@ class ShapeCollection:
     structure_ids: np.ndarray
     seed: int = 0
     instances: np.ndarray | None = None
+    generator_version: int = GENERATOR_VERSION
 
     @property
     def part_names(self) -> tuple[str, ...]:
@@ -256,7 +297,7 @@ class ShapeCollection:
             np.savez(f, category=np.array(self.category), points=self.points, normals=self.normals,
                      labels=self.labels, structures=np.asarray(self.structures, dtype=str),
                      structure_ids=self.structure_ids, seed=np.array(self.seed),
-                     generator_version=np.array(GENERATOR_VERSION), **extra)
+                     generator_version=np.array(self.generator_version), **extra)
         os.replace(f.name, path)
         return path
 
@@ -300,6 +341,9 @@ class ShapeCollection:
             raise ValueError(f"{path}: holds NaN or infinite coordinates")
         if labels.size and (labels.min() < 0 or labels.max() >= len(PART_NAMES[category])):
             raise ValueError(f"{path}: part labels outside 0 .. {len(PART_NAMES[category]) - 1}")
+        version = int(data.get("generator_version", 1))
+        if version not in GENERATOR_VERSIONS:
+            raise ValueError(f"{path}: generator version {version} is not one of {GENERATOR_VERSIONS}")
         instances = data.get("instances")
         if instances is not None:
             if instances.shape != labels.shape or instances.dtype.kind not in "iu" or \
@@ -309,7 +353,8 @@ class ShapeCollection:
             instances = instances.astype(np.int64)
         return cls(category=category, points=points, normals=normals, labels=labels.astype(np.int64),
                    structures=data["structures"], structure_ids=data["structure_ids"].astype(np.int64),
-                   seed=int(data.get("seed", 0)), instances=instances)
+                   seed=int(data.get("seed", 0)), instances=instances,
+                   generator_version=version)
 
 
 def default_cache_dir() -> Path:
@@ -326,6 +371,7 @@ def make_collection(
     cache_dir: str | os.PathLike | None = None,
     use_cache: bool = True,
     progress: bool = False,
+    version: int = GENERATOR_VERSION,
 ) -> ShapeCollection:
     """Generate (or load from the cache) ``n_shapes`` shapes of ``category`` with ``n_points`` each.
 
@@ -335,26 +381,29 @@ def make_collection(
         n_points: N, points per shape.
         seed: the collection's seed (shape i's generator is seeded with ``(seed, category, i)``).
         cache_dir: cache folder; None: :func:`default_cache_dir`. The file name encodes
-            ``(category, n_shapes, n_points, seed, GENERATOR_VERSION)``.
+            ``(category, n_shapes, n_points, seed, version)``.
         use_cache: read and write the cache; False always generates and writes nothing.
         progress: show a tqdm progress bar while generating.
+        version: the generator, one of :data:`GENERATOR_VERSIONS` (1: the committed networks' shapes).
 
     Returns:
         A :class:`ShapeCollection`: points (S, N, 3) and normals (S, N, 3) float32, labels and instances
         (S, N) int64.
     """
     _check_category(category)
+    version = check_generator_version(version)
     n_shapes = check_size(n_shapes, "n_shapes", MAX_SHAPES, "shapes")
     n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     check_size(n_shapes * n_points, f"n_shapes x n_points ({n_shapes:,} x {n_points:,})", MAX_COLLECTION_POINTS)
     cache_file = None
     if use_cache:
         cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-        cache_file = cache_dir / f"{category}_S{n_shapes}_N{n_points}_seed{seed}_v{GENERATOR_VERSION}.npz"
+        cache_file = cache_dir / f"{category}_S{n_shapes}_N{n_points}_seed{seed}_v{version}.npz"
         if cache_file.is_file():
             try:
                 cached = ShapeCollection.load(cache_file)
-                if (cached.category, cached.points.shape, cached.seed) == (category, (n_shapes, n_points, 3), seed) \
+                if (cached.category, cached.points.shape, cached.seed, cached.generator_version) == \
+                        (category, (n_shapes, n_points, 3), seed, version) \
                         and cached.instances is not None:
                     return cached
             except ValueError:
@@ -370,11 +419,12 @@ def make_collection(
 
         indices = tqdm(indices, desc=f"{category} shapes")
     for i in indices:
-        _, structure, sid, p, nn, lab, inst, _, _ = _sample_shape(category, i, seed, n_points)
+        _, structure, sid, p, nn, lab, inst, _, _ = _sample_shape(category, i, seed, n_points, version)
         points[i], normals[i], labels[i], instances[i] = p, nn, lab, inst
         structures.append(structure)
         ids[i] = sid
-    coll = ShapeCollection(category, points, normals, labels, np.array(structures, dtype=str), ids, seed, instances)
+    coll = ShapeCollection(category, points, normals, labels, np.array(structures, dtype=str), ids, seed, instances,
+                           version)
     if cache_file is not None:
         coll.save(cache_file)
     return coll
