@@ -95,7 +95,7 @@ import numpy as np
 import torch
 
 from cuboidlib.applications import load_trained_model
-from cuboidlib.dataset import ShapeSet, split_indices
+from cuboidlib.dataset import UNVERSIONED_GENERATOR, ShapeSet, split_indices
 from cuboidlib.evaluation import _shape_generator, label_transfer_split, predict_cuboids, segmentation_scores
 from cuboidlib.files import write_text_atomic
 from cuboidlib.metrics import ChamferConvention, cuboid_chamfer_distance
@@ -812,7 +812,8 @@ def run_category(category: str, n_shapes: int, real_shapes, only) -> dict:
     cfg = state["config"]
     test = split_indices(cfg["n_shapes"], tuple(cfg["split_fractions"]), cfg["split_seed"])["test"]
     indices = [int(i) for i in test[:n_shapes]]
-    base = [make_shape(category, i, cfg["n_points"], cfg["data_seed"]) for i in indices]
+    version = cfg.get("generator_version", UNVERSIONED_GENERATOR)  # the network's own shapes
+    base = [make_shape(category, i, cfg["n_points"], cfg["data_seed"], version) for i in indices]
     print(f"== {category}: {path.name}, test shapes {len(indices)} of {len(test)}", flush=True)
     out = {"network": str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path),
            "test_indices": indices}
@@ -824,7 +825,7 @@ def run_category(category: str, n_shapes: int, real_shapes, only) -> dict:
         print(f"  interior points of the real meshes: {100 * share:.1f} % estimated (every-face sampling of the "
               f"procedural shapes: {100 * out['interior']['every_face_interior_share']:.1f} %)", flush=True)
     out["rows"] = run_changes(category, model, cfg, base, indices, only, share)
-    dense = [make_shape(category, i, 2048, cfg["data_seed"]) for i in indices]  # as many points as the real meshes
+    dense = [make_shape(category, i, 2048, cfg["data_seed"], version) for i in indices]  # as many points as the real meshes
     procedural = [part_stats(category, s.points.astype(np.float64), s.labels) for s in dense]
     out["procedural_layouts"] = _layouts(category, [(s.points, s.labels) for s in dense])
     if len(kept) >= 2:
