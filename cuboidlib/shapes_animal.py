@@ -22,7 +22,7 @@ BODY, HEAD, LEG, TAIL = range(4)
 
 #: Version 2's tail poses: (name, weight, range of the root-to-tip angle above the horizontal in degrees).
 TAIL_POSES: tuple[tuple[str, float, tuple[float, float]], ...] = (
-    ("hanging", 0.45, (-80.0, -40.0)), ("level", 0.35, (-40.0, 10.0)), ("raised", 0.2, (10.0, 70.0)))
+    ("hanging", 0.45, (-85.0, -45.0)), ("level", 0.35, (-40.0, 10.0)), ("raised", 0.2, (10.0, 75.0)))
 #: Version 2: the share of bodies drawn 1.15-1.3 times wider.
 WIDE_SHARE = 0.35
 
@@ -93,7 +93,7 @@ def animal_v1(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
 
 def animal_v2(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
     """Version 2: the body plans of version 1 with thighs and shoulders labelled leg up the body's side (their
-    labels reach about 45-65 % of the body's height), a posed tail (:data:`TAIL_POSES`, 0.18-0.55 body lengths) and, in
+    labels reach about 45-70 % of the body's height), a posed tail (:data:`TAIL_POSES`, 0.18-0.7 body lengths) and, in
     :data:`WIDE_SHARE` of the draws, a wider body.
 
     Args:
@@ -137,11 +137,11 @@ def _legs(rng, hip_x: float, hip_z: float, hip_y: float, leg_r: float, parts: li
 
 def _thighs(rng, radii, hb: float, hip, leg_r: float, parts: list) -> None:
     """Each leg's thigh or shoulder: a capsule labelled leg, 1.3-1.8 leg radii thick, from the hip up to the
-    body's side at 38-56 % of the body's height (one height for the four; their labels then reach about 45-65 %), half of it outside the body."""
+    body's side at 38-62 % of the body's height (one height for the four; their labels then reach about 45-70 %), half of it outside the body."""
     U = rng.uniform
     rx, ry, rz = radii
     hip_x, hip_y, hip_z = hip
-    top = hb - ry + 2 * ry * U(0.38, 0.56)
+    top = hb - ry + 2 * ry * U(0.38, 0.62)
     r = min(U(1.3, 1.8) * leg_r, 0.5 * rx)
     side = rx * math.sqrt(max(0.0, 1 - (hip_z / rz) ** 2 - ((top - hb) / ry) ** 2))  # the body's side at that height
     for sz in (1, -1):
@@ -169,17 +169,17 @@ def _head(rng, plan: str, hb: float, ry: float, rz: float, ears: bool, parts: li
 
 
 def _posed_tail(rng, angles, radii, hb: float, floor: float, parts: list) -> None:
-    """Two capsules from the body's rear top, 0.18-0.55 body lengths from root to tip, the root-to-tip direction
-    ``angles`` (a range, degrees) above the horizontal, backwards: the first capsule at 0.6 of that angle, the second
-    at 1.3 of it (a hanging tail falls more steeply towards its tip). A tail that would reach below ``floor`` is
+    """Two capsules from the body's rear top, 0.18-0.7 body lengths from root to tip, the root-to-tip direction
+    ``angles`` (a range, degrees) above the horizontal, backwards: the first capsule at 0.75 of that angle, the second
+    at 1.2 of it (a hanging tail falls more steeply towards its tip). A tail that would reach below ``floor`` is
     shortened about its root."""
     U = rng.uniform
     ry, rz = radii
-    angle, length, tr = U(*angles) * DEG, U(0.18, 0.55) * 2 * rz, U(0.02, 0.04)
+    angle, length, tr = U(*angles) * DEG, U(0.18, 0.7) * 2 * rz, U(0.02, 0.04)
     t0 = np.array([0.0, hb + 0.35 * ry, -0.88 * rz])
     first = U(0.35, 0.5) * length
     ends = [t0]
-    for a, piece in ((0.6 * angle, first), (float(np.clip(1.3 * angle, -88 * DEG, 85 * DEG)), length - first)):
+    for a, piece in ((0.75 * angle, first), (float(np.clip(1.2 * angle, -88 * DEG, 85 * DEG)), length - first)):
         ends.append(ends[-1] + piece * np.array([0.0, math.sin(a), -math.cos(a)]))
     low = min(e[1] for e in ends) - tr
     if low < floor:

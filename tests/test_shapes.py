@@ -114,21 +114,21 @@ def test_version_2_animals_draw_posed_tails_wider_bodies_and_thighs_at_their_rat
     for pose, weight, (lo, hi) in TAIL_POSES:
         posed = [solids for solids, st, _ in drawn if f"+{pose}-tail" in st]
         assert _rate_ok(len(posed), N_DRAWS, weight)
-        angles = [_tail_angle(solids) for solids in posed]  # between 0.6 and 1.3 times the drawn angle
-        assert min(1.3 * lo, 0.6 * lo) - 1e-6 <= min(angles) and max(angles) <= max(1.3 * hi, 0.6 * hi) + 1e-6
+        angles = [_tail_angle(solids) for solids in posed]  # between 0.75 and 1.2 times the drawn angle
+        assert max(min(1.2 * lo, 0.75 * lo), -88) - 1e-6 <= min(angles) and max(angles) <= max(1.2 * hi, 0.75 * hi)
     angles = [_tail_angle(solids) for solids, _, _ in drawn]
-    assert min(angles) < -70 and max(angles) > 60, "tails from hanging to raised"
+    assert min(angles) < -75 and max(angles) > 65, "tails from hanging to raised"
     assert _rate_ok(sum("+wide" in st for st in structures), N_DRAWS, WIDE_SHARE)
     ends = [[s for s in solids if s.label == 3] for solids, _, _ in drawn]
     length = np.array([np.linalg.norm(tail[-1].b - tail[0].a) for tail in ends])  # body length 1 before scaling
     v1_short = [np.linalg.norm(tail[-1].b - tail[0].a) < 0.16 for tail in
                 ([s for s in shapes.build_parts("animal", i, 0, version=1)[0] if s.label == 3] for i in range(N_DRAWS))]
-    assert length.max() <= 0.55 + 1e-9 and np.mean(length < 0.16) < 0.1 < np.mean(v1_short), "no stubs of tails"
+    assert length.max() <= 0.7 + 1e-9 and np.mean(length < 0.16) < 0.1 < np.mean(v1_short), "no stubs of tails"
 
 
 def test_version_2_leg_labels_reach_up_the_body_as_on_the_real_meshes():
     for i in range(12):
-        for version, lo, hi in ((1, 0.2, 0.42), (2, 0.42, 0.72)):
+        for version, lo, hi in ((1, 0.2, 0.42), (2, 0.42, 0.8)):
             s = make_shape("animal", i, 2048, 0, version=version)
             body_y, leg_y = s.points[s.labels == 0, 1], s.points[s.labels == 2, 1]
             up = (np.percentile(leg_y, 99) - body_y.min()) / np.ptp(body_y)  # transfer_causes' statistic
