@@ -690,7 +690,8 @@ def finished_record(run: Run, run_dir: Path) -> dict | None:
     same = (record.get("status") == "ok" and record.get("name") == run.name and record.get("task") == run.task
             and _without_neutral_defaults(record.get("config") or {}) == _without_neutral_defaults(run.config.to_dict())
             and json.loads(json.dumps(run.options)) == record.get("options")
-            and (None if run.finetune is None else run.finetune.to_dict()) == record.get("finetune_config"))
+            and (None if run.finetune is None else _without_neutral_defaults(run.finetune.to_dict()))
+            == (None if record.get("finetune_config") is None else _without_neutral_defaults(record["finetune_config"])))
     return record if same else None
 
 
