@@ -199,7 +199,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=3, help="k-means seeds, the best kept (default 3)")
     parser.add_argument("--json", type=Path, help="write the records and the summary here")
     parser.add_argument("--png", type=Path, help="write one picture per shape into this folder")
+    parser.add_argument("--model", action="append", default=[], metavar="CATEGORY=CHECKPOINT",
+                        help="score this checkpoint (a file or a training run's folder) instead of the committed "
+                             "network of CATEGORY, repeatable")
     args = parser.parse_args(argv)
+    models = {}
+    for item in args.model:
+        name, sep, checkpoint = item.partition("=")
+        if not sep or name not in CATEGORIES:
+            parser.error(f"--model takes CATEGORY=CHECKPOINT with CATEGORY one of {', '.join(CATEGORIES)}, got {item!r}")
+        models[name] = checkpoint
     roots = {}
     for item in args.root:
         name, sep, folder = item.partition("=")
@@ -220,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         group = [s for s in shapes if s.category == category and (not args.only or s.name in args.only)]
         if not group:
             continue
-        net, state, _ = load_trained_model(category, "cpu")
+        net, state, _ = load_trained_model(models.get(category, category), "cpu")
         net_points = int(state["config"]["n_points"])
         done, parts = [], {"net": ([], []), "refined": ([], [])}
         for shape in group:

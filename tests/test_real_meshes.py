@@ -208,3 +208,21 @@ def test_command_line_summary(tmp_path, capsys):
                       "--png", str(tmp_path / "png")]) == 0
     out = capsys.readouterr().out
     assert "chair       1 shapes (1 labelled)" in out and "seat" in out and (tmp_path / "png" / "c.png").is_file()
+
+
+def test_the_benchmark_refuses_a_model_without_a_known_category(capsys):
+    spec = importlib.util.spec_from_file_location("bench_real_meshes", ROOT / "benchmarks" / "bench_real_meshes.py")
+    bench = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        spec.loader.exec_module(bench)
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    for bad in ("runs/airplane_v2", "boat=runs/boat"):
+        try:
+            bench.main(["--model", bad])
+        except SystemExit as stop:
+            assert stop.code == 2
+        else:
+            raise AssertionError(f"--model {bad} was accepted")
+        assert "--model takes CATEGORY=CHECKPOINT" in capsys.readouterr().err
