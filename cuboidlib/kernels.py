@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from types import ModuleType
 
+from .files import atomic_path
+
 try:
     import fcntl  # POSIX file locks
 except ImportError:  # pragma: no cover (Windows)
@@ -126,9 +128,21 @@ def _load(name: str, flags: list[str], folder: Path) -> ModuleType:
     # Every build of this folder holds the project's lock first, so a file found now is such a leftover.
     (folder / "lock").unlink(missing_ok=True)
     try:
-        return load(name, [str(_SOURCE)], extra_cflags=flags, build_directory=str(folder), verbose=False)
+        source = _source_copy(folder)
+        return load(name, [str(source)], extra_cflags=flags, build_directory=str(folder), verbose=False)
     except Exception as error:  # a compiler or linker failure: say so, then the Python code still works
         raise KernelsUnavailable(f"building {_SOURCE.name} failed: {error}") from error
+
+
+def _source_copy(folder: Path) -> Path:
+    """The source, copied into the build folder once: ninja rebuilds when a command line changes, and the
+    command names the source's path, so checkouts in different folders would otherwise rebuild the same kernels
+    in turn. The folder's name holds the source's hash, so the copy is the same for every checkout."""
+    copy = folder / _SOURCE.name
+    if not copy.is_file() or copy.read_bytes() != _SOURCE.read_bytes():
+        with atomic_path(copy) as tmp:
+            tmp.write_bytes(_SOURCE.read_bytes())
+    return copy
 
 
 #: How long a process waits for another's build of the same kernels before it runs the PyTorch code.

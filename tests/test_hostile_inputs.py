@@ -183,7 +183,7 @@ def test_evaluate_takes_committed_names_and_folders_do_not_shadow_them(tmp_path,
     (tmp_path / "table" / "result.json").write_text("{}")
     assert resolve_checkpoint("table") == CHECKPOINTS / "table.pt"
     assert main(["evaluate", "table", "--split", "val", "--samples", "256"]) == 0
-    assert capsys.readouterr().out.startswith("table: table, val split")
+    assert capsys.readouterr().out.startswith("table: table, generator version 1, val split")
 
 
 # ------------------------------------------------------------------------------ misleading checks

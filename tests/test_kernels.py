@@ -334,6 +334,27 @@ def test_a_build_never_waits_on_the_lock_file_pytorch_leaves_behind(tmp_path, mo
     assert seen == {"lock": False, "folder": str(folder)}
 
 
+def test_every_checkout_builds_from_the_same_source_path(tmp_path, monkeypatch):
+    """ninja rebuilds when the compile command changes, and the command names the source: two checkouts in two
+    folders would rebuild the same kernels in turn. The build reads a copy of the source kept in its folder."""
+    folder = tmp_path / "cuboidlib_kernels_x"
+    folder.mkdir()
+    seen = []
+    monkeypatch.setattr("torch.utils.cpp_extension.load",
+                        lambda name, sources, extra_cflags, build_directory, verbose: seen.append(sources) or "module")
+    kernels._load("cuboidlib_kernels_x", ["-O3"], folder)
+    copy = folder / kernels._SOURCE.name
+    assert seen == [[str(copy)]] and copy.read_bytes() == kernels._SOURCE.read_bytes()
+    stamp = copy.stat().st_mtime_ns
+    other = tmp_path / "other_checkout" / kernels._SOURCE.name  # the same source in another folder
+    other.parent.mkdir()
+    other.write_bytes(kernels._SOURCE.read_bytes())
+    monkeypatch.setattr(kernels, "_SOURCE", other)
+    kernels._load("cuboidlib_kernels_x", ["-O3"], folder)
+    assert seen[1] == [str(copy)] and copy.stat().st_mtime_ns == stamp  # the copy is not rewritten
+    assert [p.name for p in folder.iterdir()] == [copy.name]  # no temporary file left
+
+
 def test_a_failed_build_raises_kernels_unavailable_with_the_cause(tmp_path, monkeypatch):
     def failing_load(*args, **kwargs):
         raise RuntimeError("Error building extension: g++ exited with 1")
