@@ -8,6 +8,9 @@ as they finish. This module reads whatever records are there and applies the tes
   the cells the same, three seeds each would do this by chance with probability 2/20 = 0.1);
 * a **trend** over M holds when the means are monotone and the ends (M = 8 against M = 24) differ.
 
+The same tests apply to the 600-step runs of the same cells (``results/<script>.json``, the first look), and the
+same rule to Table 5's 15-minute runs (``results/table5_compactness_15min.json``), whose tests were written after them.
+
 A test's verdict is "holds", "fails", "unresolved at three seeds" (the seeds overlap) or, while some of its runs
 are missing, "unresolved: k of n runs finished". Table 4's normal consistency is measured both ways (``nc_both``),
 as lesson 07 reads it. Records written before the rename of ``flatness`` are read with today's metric names
@@ -24,6 +27,7 @@ from typing import Sequence
 import runner
 import table3_supervision as table3
 import table4_distance as table4
+import table5_compactness as table5
 import table6_num_cuboids as table6
 
 #: Where ``ablations_15min.sh`` keeps the records of the finished runs (its ``--runs-dir``).
@@ -61,14 +65,16 @@ class Test:
                              f"cells, got {len(self.cells)}")
 
 
-def _table3_tests() -> list[Test]:
-    seg, chair = {"category": "chair", "variant": "P2C-Seg"}, {"category": "chair"}
-    return [Test(f"P2C-Seg gives the {word}", metric, (seg, {**chair, "variant": other}), kind)
+def table3_tests(category: str = "chair") -> list[Test]:
+    """Table 3's claim on one category: P2C-Seg's Chamfer distance below, and its mIoU above, each other variant's."""
+    seg, cat = {"category": category, "variant": "P2C-Seg"}, {"category": category}
+    return [Test(f"P2C-Seg gives the {word}", metric, (seg, {**cat, "variant": other}), kind)
             for word, metric, kind in (("lowest Chamfer distance", "cd", "lower"), ("highest mIoU", "miou", "higher"))
             for other in ("P2C-Dis", "Chamfer-Dis")]
 
 
-def _table4_tests() -> list[Test]:
+def table4_tests() -> list[Test]:
+    """Table 4's claim on sigma_s (chairs): sigma_s = 0.05 against 0, under the most noise and without noise."""
     cell = lambda sigma_n, sigma_s: {"sigma_n": sigma_n, "distance": "Normal", "sigma_s": sigma_s}  # noqa: E731
     noisy, clean = max(table4.NOISE), 0.0
     return [Test("sigma_s > 0 is robust to noise", "cd", (cell(noisy, 0.05), cell(noisy, 0.0)), "lower"),
@@ -78,14 +84,24 @@ def _table4_tests() -> list[Test]:
                  "not_lower")]
 
 
-def _table6_tests() -> list[Test]:
-    cells = tuple({"category": "chair", "M": m} for m in table6.NUM_CUBOIDS)
+def table6_tests(category: str = "chair") -> list[Test]:
+    """Table 6's claim on one category: over M = 8 ... 24 the Chamfer distance falls and N_AC grows."""
+    cells = tuple({"category": category, "M": m} for m in table6.NUM_CUBOIDS)
     return [Test("the Chamfer distance falls with M", "cd", cells, "falls"),
             Test("more cuboids are used with a larger M", "n_ac", cells, "grows")]
 
 
-#: table -> its tests, as the README states them.
-TESTS = {"table3": _table3_tests(), "table4": _table4_tests(), "table6": _table6_tests()}
+def table5_tests(weights: Sequence[float] = table5.LAMBDAS) -> list[Test]:
+    """Table 5's claims (chairs), the same rule applied after its runs: with lambda_1, N_AC falls and the Chamfer
+    distance grows; the largest weight loses structure (its mIoU below the second weight's, the paper's best)."""
+    cells = tuple({"lambda_1": w} for w in weights)
+    return [Test("fewer cuboids with a larger lambda_1", "n_ac", cells, "falls"),
+            Test("a larger Chamfer distance with a larger lambda_1", "cd", cells, "grows"),
+            Test("the largest lambda_1 loses structure", "miou", (cells[-1], cells[1]), "lower")]
+
+
+#: table -> its tests on chairs, as the README states them (Table 5's: the same rule, applied after its runs).
+TESTS = {"table3": table3_tests(), "table4": table4_tests(), "table5": table5_tests(), "table6": table6_tests()}
 
 
 def _check_table(table: str) -> None:
@@ -202,3 +218,36 @@ def claims(verdicts: Sequence[dict]) -> dict[str, str]:
         out.setdefault(v["claim"], []).append(v["verdict"])
     return {claim: "fails" if "fails" in words else "holds" if set(words) == {"holds"} else "unresolved"
             for claim, words in out.items()}
+
+
+def describe(test: Test) -> str:
+    """What a test compares, in one line: "cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < 0",
+    "cd falls over M 8 ... 24"."""
+    first, last = test.cells[0], test.cells[-1]
+    varied = [k for k in first if first[k] != last.get(k)]
+    fixed = [k for k in first if k not in varied and k not in ("category", "distance")]
+    where = "".join(f" at {k} {first[k]:g}" for k in fixed)
+    if test.kind in ("falls", "grows"):
+        return f"{test.metric}{where} {test.kind[:-1]}s over {' '.join(varied)} {first[varied[0]]:g} ... {last[varied[0]]:g}"
+    sign = {"lower": "<", "higher": ">", "not_higher": "not >", "not_lower": "not <"}[test.kind]
+    name = lambda cell: " ".join(f"{cell[k]:g}" if isinstance(cell[k], float) else str(cell[k]) for k in varied)  # noqa: E731
+    label = "" if all(isinstance(first[k], str) for k in varied) else " ".join(varied) + " "
+    return f"{test.metric}{where}: {label}{name(first)} {sign} {name(last)}"
+
+
+def main() -> int:
+    """Print, for each table, the finished seeds of every cell and the verdict of every test."""
+    for table in ABLATIONS:
+        records = read_records(table)
+        print(f"{table}: {len(records)} of {len(planned_runs(table))} runs finished")
+        for row in cells(table, records):
+            print("  " + ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("finished", "planned"))
+                  + f": {row['finished']} of {row['planned']} seeds")
+        for test in TESTS[table]:
+            v = verdict(test, records)
+            print(f"  {describe(test)}: {v['verdict']} ({v['why']})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -827,6 +827,22 @@ def test_table4_no_cost_fails_only_when_sigma_s_is_worse_beyond_the_seeds(tmp_pa
         assert ablations.verdict(clean, records(cd_005, cd_0))["verdict"] == expected
 
 
+def test_the_same_tests_apply_to_other_categories_and_to_table5():
+    assert [t.cells[0]["category"] for t in ablations.table3_tests("table")] == ["table"] * 4
+    assert [c["M"] for c in ablations.table6_tests("airplane")[0].cells] == list(table6.NUM_CUBOIDS)
+    assert [c["lambda_1"] for c in ablations.TESTS["table5"][0].cells] == list(table5.LAMBDAS)
+    runs = [_record(f"l{w}_s{s}", {"lambda_1": w, "form": "averaged", "seed": s}, n_ac=10 - 20 * w + s / 10,
+                    cd=1 + w + s / 100, miou=0.8) for w in table5.LAMBDAS for s in range(3)]
+    words = [ablations.verdict(t, runs)["verdict"] for t in ablations.TESTS["table5"]]
+    assert words == ["holds", "holds", "unresolved at three seeds"], "mIoU tied: the seeds overlap"
+
+
+def test_a_test_describes_itself_in_one_line():
+    lines = [ablations.describe(t) for t in (ablations.table3_tests()[0], ablations.table4_tests()[0],
+                                               ablations.table6_tests()[1])]
+    assert lines == ["cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < 0", "n_ac grows over M 8 ... 24"]
+
+
 def test_ablation_reader_rejects_bad_arguments(tmp_path):
     with pytest.raises(ValueError, match="table must be one of"):
         ablations.read_records("table5", tmp_path)
