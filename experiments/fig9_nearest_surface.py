@@ -7,7 +7,7 @@ face whose normal matches its own, does not.
 
 The runs are Table 4's chair configurations without noise (``table4_distance``) at today's course scale: the "Distance" column (the
 nearest-surface distance) and Eq. (5) with the course's sigma_s = 0.05. Besides Table 4's metrics the
-table reports the flatness of the cuboids (``runner.flatness``: the smallest half size over the largest,
+table reports the thickness of the cuboids (``runner.thickness``: the smallest half size over the largest,
 median over a shape's cuboids; 1 for cubes, near 0 for plates). The figure shows the first three test chairs.
 """
 
@@ -29,16 +29,16 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
 
 
 def report(records: list[dict], scale: runner.Scale, args: argparse.Namespace) -> tuple[list[dict], str]:
-    metrics = ("flatness", "cd", "nc_both", "nc", "miou", "n_ac")
+    metrics = ("thickness", "cd", "nc_both", "nc", "miou", "n_ac")
     summary = runner.summarize(runner.result_rows(records), ("distance", "sigma_s"), metrics)
-    rows = [[r["distance"], f"{r['sigma_s']:.3f}", runner.mean_sd(r, "flatness", 1, 3), runner.mean_sd(r, "cd", 1000),
+    rows = [[r["distance"], f"{r['sigma_s']:.3f}", runner.mean_sd(r, "thickness", 1, 3), runner.mean_sd(r, "cd", 1000),
              runner.mean_sd(r, "nc_both"), runner.mean_sd(r, "nc"), runner.mean_sd(r, "miou", 100, 1),
              runner.mean_sd(r, "n_ac", 1, 2)] for r in summary]
-    headers = ["distance", "sigma_s", "flatness", "CD x1000", "NC", "NC from points", "mIoU %", "N_AC"]
+    headers = ["distance", "sigma_s", "thickness", "CD x1000", "NC", "NC from points", "mIoU %", "N_AC"]
     return summary, "\n".join([
         "Fig. 9: the nearest-surface distance against Eq. (5) (chairs, no noise)", runner.text_table(headers, rows),
         runner.CD_CONVENTION,
-        "flatness: smallest over largest half size of a cuboid, median over a shape's existing cuboids, mean over "
+        "thickness: smallest over largest half size of a cuboid, median over a shape's existing cuboids, mean over "
         "the test shapes (1 = cubes, near 0 = plates). NC: normal consistency both ways; 'from points' alone.",
         f"The paper: {PAPER['source']}.",
     ])
@@ -52,7 +52,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
 
 EXPERIMENT = runner.Experiment(
     name="fig9_nearest_surface",
-    title="Fig. 9: the cuboids of the nearest-surface distance against Eq. (5) on chairs (figure, flatness)",
+    title="Fig. 9: the cuboids of the nearest-surface distance against Eq. (5) on chairs (figure, thickness)",
     description=__doc__,
     paper=PAPER,
     default_steps=600,

@@ -111,7 +111,7 @@ __all__ = [
     "compactness_note",
     "Run",
     "nearest_cuboid_segmentation",
-    "flatness",
+    "thickness",
     "draw_abstractions",
     "score_network",
     "execute",
@@ -409,10 +409,11 @@ def nearest_cuboid_segmentation(shapes: ShapeSet, pred: AbstractionBatch, distan
     return d.masked_fill(~pred.cuboids.exists[:, None, :], math.inf).argmin(dim=-1)
 
 
-def flatness(pred: AbstractionBatch) -> float:
-    """How slab-like the existing cuboids are: the smallest of a cuboid's three half sizes over its largest,
-    the median over the existing cuboids of a shape, averaged over shapes (1: cubes; near 0: the thin stacked
-    plates of the paper's Fig. 9)."""
+def thickness(pred: AbstractionBatch) -> float:
+    """How thick the existing cuboids are for their size: the smallest of a cuboid's three half sizes over its
+    largest, the median over the existing cuboids of a shape, averaged over shapes. Larger is thicker: 1 for
+    cubes, near 0 for the thin stacked plates of the paper's Fig. 9. (Results written before the rename call it
+    ``flatness``; :func:`summaries.result_rows` reads either name.)"""
     sizes = pred.cuboids.half_sizes.sort(dim=-1).values
     ratio = sizes[..., 0] / sizes[..., 2].clamp_min(1e-12)
     return float(torch.stack([ratio[i][pred.cuboids.exists[i]].median() if pred.cuboids.exists[i].any()
@@ -441,7 +442,7 @@ def score_network(model: CuboidAbstractionNet, config: TrainConfig, options: dic
     scores = score_cuboids(test, pred)
     scores.update(num_cuboids=pred.num_segments, shapes_without_existing_cuboid=fallback)
     metrics = _metrics(scores)
-    metrics["flatness"] = flatness(pred)
+    metrics["thickness"] = thickness(pred)
     if options.get("sigma_n") is not None:
         scores["clean"] = score_cuboids(ShapeSet(clean.points, clean.normals, None, clean.indices), pred)
         metrics.update(cd_clean=scores["clean"]["chamfer"][0]["value"], nc_clean=scores["clean"]["normal_consistency"],

@@ -1,6 +1,7 @@
 """Summaries and result files of the experiment scripts (used through :mod:`runner`).
 
-* :func:`result_rows` flattens run records to one row per (run, method); :func:`summarize` groups
+* :func:`result_rows` flattens run records to one row per (run, method), the metrics under today's names
+  (:func:`current_metrics`); :func:`summarize` groups
   rows and gives the mean, sample standard deviation and count of every metric; :func:`mean_sd`,
   :func:`paper_value` and :func:`text_table` format them.
 * :func:`write_results` writes ``experiments/results/<name>.json`` (everything, with provenance from
@@ -23,7 +24,7 @@ import torch
 
 from cuboidlib.files import write_text_atomic
 
-__all__ = ["result_rows", "summarize", "mean_sd", "paper_value", "text_table", "CD_CONVENTION", "machine",
+__all__ = ["RENAMED_METRICS", "current_metrics", "result_rows", "summarize", "mean_sd", "paper_value", "text_table", "CD_CONVENTION", "machine",
            "write_results"]
 
 
@@ -32,14 +33,25 @@ __all__ = ["result_rows", "summarize", "mean_sd", "paper_value", "text_table", "
 # ----------------------------------------------------------------------------------------------
 
 
+#: Metrics renamed after records were written: old name -> name today. Runs pinned to an older commit (the
+#: 15-minute ablations) keep writing the old name, so every reader of records goes through :func:`current_metrics`.
+RENAMED_METRICS = {"flatness": "thickness"}
+
+
+def current_metrics(metrics: dict) -> dict:
+    """A run's metrics under today's names (:data:`RENAMED_METRICS`); a record holding both names keeps today's."""
+    renamed = {RENAMED_METRICS.get(k, k): v for k, v in metrics.items() if k in RENAMED_METRICS}
+    return {**renamed, **{k: v for k, v in metrics.items() if k not in RENAMED_METRICS}}
+
+
 def result_rows(records: Sequence[dict]) -> list[dict]:
-    """One flat row per (successful run, method): the run's key, ``method`` and the metrics."""
+    """One flat row per (successful run, method): the run's key, ``method`` and the metrics (today's names)."""
     rows = []
     for record in records:
         if record.get("status") != "ok":
             continue
         for result in record["results"]:
-            rows.append({**record["key"], "method": result["method"], **result["metrics"]})
+            rows.append({**record["key"], "method": result["method"], **current_metrics(result["metrics"])})
     return rows
 
 

@@ -1,0 +1,253 @@
+"""The 15-minute ablations (README, "The 15-minute ablations"): what the runs finished so far say.
+
+``ablations_15min.sh`` trains Tables 3, 4 and 6 on chairs at the 15-minute recipe's scale, three seeds a cell. Each
+finished run leaves ``results/runs_15min/<script>_15min/<stamp>/<run>/record.json``, and the records are committed
+as they finish. This module reads whatever records are there and applies the tests the README states before the runs:
+
+* two cells **differ** when their seeds do not overlap: every seed of one lies below every seed of the other (were
+  the cells the same, three seeds each would do this by chance with probability 2/20 = 0.1);
+* a **trend** over M holds when the means are monotone and the ends (M = 8 against M = 24) differ.
+
+The same tests apply to the 600-step runs of the same cells (``results/<script>.json``, the first look), and the
+same rule to Table 5's 15-minute runs (``results/table5_compactness_15min.json``), whose tests were written after them.
+
+A test's verdict is "holds", "fails", "unresolved at three seeds" (the seeds overlap) or, while some of its runs
+are missing, "unresolved: k of n runs finished". Table 4's normal consistency is measured both ways (``nc_both``),
+as lesson 07 reads it. Records written before the rename of ``flatness`` are read with today's metric names
+(:func:`summaries.result_rows`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import runner
+import table3_supervision as table3
+import table4_distance as table4
+import table5_compactness as table5
+import table6_num_cuboids as table6
+
+#: Where ``ablations_15min.sh`` keeps the records of the finished runs (its ``--runs-dir``).
+RUNS_15MIN = runner.RESULTS_DIR / "runs_15min"
+
+#: table -> (its script, the options ``ablations_15min.sh`` gives it besides :data:`COMMON`).
+ABLATIONS = {
+    "table3": (table3, ("--categories", "chair")),
+    "table4": (table4, ("--noise", "0,0.03", "--columns", "Normal-0,Normal-0.05")),
+    "table6": (table6, ("--categories", "chair")),
+}
+#: The options ``ablations_15min.sh`` gives every table that decide which runs there are.
+COMMON = ("--recipe", runner.FIFTEEN_MINUTES, "--seeds", "3")
+
+#: What a test asks of its cells: a below b, a above b, a not above b, a not below b, means falling or growing.
+KINDS = ("lower", "higher", "not_higher", "not_lower", "falls", "grows")
+
+
+@dataclass(frozen=True)
+class Test:
+    """One comparison stated before the runs. claim: the paper's claim it decides. metric: a key of the runs'
+    metrics. cells: the cells it compares (each a dict of key fields), two for a comparison, in order of M for a
+    trend. kind: one of :data:`KINDS`; the first cell is "a"."""
+
+    claim: str
+    metric: str
+    cells: tuple[dict, ...]
+    kind: str
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
+        if len(self.cells) < 2 or (self.kind not in ("falls", "grows") and len(self.cells) != 2):
+            raise ValueError(f"a {self.kind!r} test compares {'two' if self.kind not in ('falls', 'grows') else 'two or more'} "
+                             f"cells, got {len(self.cells)}")
+
+
+def table3_tests(category: str = "chair") -> list[Test]:
+    """Table 3's claim on one category: P2C-Seg's Chamfer distance below, and its mIoU above, each other variant's."""
+    seg, cat = {"category": category, "variant": "P2C-Seg"}, {"category": category}
+    return [Test(f"P2C-Seg gives the {word}", metric, (seg, {**cat, "variant": other}), kind)
+            for word, metric, kind in (("lowest Chamfer distance", "cd", "lower"), ("highest mIoU", "miou", "higher"))
+            for other in ("P2C-Dis", "Chamfer-Dis")]
+
+
+def table4_tests() -> list[Test]:
+    """Table 4's claim on sigma_s (chairs): sigma_s = 0.05 against 0, under the most noise and without noise."""
+    cell = lambda sigma_n, sigma_s: {"sigma_n": sigma_n, "distance": "Normal", "sigma_s": sigma_s}  # noqa: E731
+    noisy, clean = max(table4.NOISE), 0.0
+    return [Test("sigma_s > 0 is robust to noise", "cd", (cell(noisy, 0.05), cell(noisy, 0.0)), "lower"),
+            Test("sigma_s > 0 is robust to noise", "nc_both", (cell(noisy, 0.05), cell(noisy, 0.0)), "higher"),
+            Test("sigma_s > 0 costs nothing on clean input", "cd", (cell(clean, 0.05), cell(clean, 0.0)), "not_higher"),
+            Test("sigma_s > 0 costs nothing on clean input", "nc_both", (cell(clean, 0.05), cell(clean, 0.0)),
+                 "not_lower")]
+
+
+def table6_tests(category: str = "chair") -> list[Test]:
+    """Table 6's claim on one category: over M = 8 ... 24 the Chamfer distance falls and N_AC grows."""
+    cells = tuple({"category": category, "M": m} for m in table6.NUM_CUBOIDS)
+    return [Test("the Chamfer distance falls with M", "cd", cells, "falls"),
+            Test("more cuboids are used with a larger M", "n_ac", cells, "grows")]
+
+
+def table5_tests(weights: Sequence[float] = table5.LAMBDAS) -> list[Test]:
+    """Table 5's claims (chairs), the same rule applied after its runs: with lambda_1, N_AC falls and the Chamfer
+    distance grows; the largest weight loses structure (its mIoU below the second weight's, the paper's best)."""
+    cells = tuple({"lambda_1": w} for w in weights)
+    return [Test("fewer cuboids with a larger lambda_1", "n_ac", cells, "falls"),
+            Test("a larger Chamfer distance with a larger lambda_1", "cd", cells, "grows"),
+            Test("the largest lambda_1 loses structure", "miou", (cells[-1], cells[1]), "lower")]
+
+
+#: table -> its tests on chairs, as the README states them (Table 5's: the same rule, applied after its runs).
+TESTS = {"table3": table3_tests(), "table4": table4_tests(), "table5": table5_tests(), "table6": table6_tests()}
+
+
+def _check_table(table: str) -> None:
+    if table not in ABLATIONS:
+        raise ValueError(f"table must be one of {tuple(ABLATIONS)}, got {table!r}")
+
+
+def planned_runs(table: str) -> list[runner.Run]:
+    """The runs ``bash experiments/ablations_15min.sh <table>`` makes (nothing is trained)."""
+    _check_table(table)
+    module, options = ABLATIONS[table]
+    args = module.EXPERIMENT.parser().parse_args([*options, *COMMON])
+    return module.EXPERIMENT.build_runs(runner._scale(args, module.EXPERIMENT), args)
+
+
+def read_records(table: str, root: str | Path = RUNS_15MIN) -> list[dict]:
+    """The records of ``table``'s finished runs under ``root``, in the order of :func:`planned_runs`.
+
+    Args:
+        table: "table3", "table4" or "table6".
+        root: the folder ``ablations_15min.sh`` writes to (default ``experiments/results/runs_15min``); it must exist.
+    Returns:
+        One record per finished planned run (``record.json``, status "ok", the planned run's name and key); where
+        several invocations finished the same run, the newest one's. Records of other runs are left out.
+    """
+    _check_table(table)
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"no folder of 15-minute runs at {root}")
+    planned = {run.name: run for run in planned_runs(table)}
+    folder = root / f"{ABLATIONS[table][0].EXPERIMENT.name}_{runner.FIFTEEN_MINUTES}"
+    found = {}
+    for path in sorted(folder.glob(f"*/*/{runner.RECORD_FILE}")):  # the stamps sort by time: a newer record wins
+        record = json.loads(path.read_text())
+        run = planned.get(record.get("name"))
+        if record.get("status") == "ok" and run is not None and record.get("key") == json.loads(json.dumps(run.key)):
+            found[run.name] = record
+    return [found[name] for name in planned if name in found]
+
+
+def _matches(key: dict, cell: dict) -> bool:
+    return all(key.get(k) == v for k, v in cell.items())
+
+
+def cell_values(records: Sequence[dict], cell: dict, metric: str) -> list[float]:
+    """The metric of every finished seed of one cell (today's metric names), in the records' order."""
+    return [row[metric] for row in runner.result_rows(records) if _matches(row, cell) and row.get(metric) is not None]
+
+
+def cells(table: str, records: Sequence[dict]) -> list[dict]:
+    """One row per planned cell of ``table``: its key fields, ``finished`` and ``planned`` seeds."""
+    rows: dict[tuple, dict] = {}
+    for run in planned_runs(table):
+        fields = {k: v for k, v in run.key.items() if k != "seed"}
+        row = rows.setdefault(tuple(fields.items()), {**fields, "finished": 0, "planned": 0})
+        row["planned"] += 1
+        row["finished"] += any(r["name"] == run.name for r in records)
+    return list(rows.values())
+
+
+def apart(a: Sequence[float], b: Sequence[float]) -> int:
+    """The README's rule: -1 when every value of ``a`` lies below every value of ``b``, +1 when above, 0 otherwise."""
+    if not a or not b:
+        raise ValueError(f"both cells need values, got {len(a)} and {len(b)}")
+    return -1 if max(a) < min(b) else 1 if min(a) > max(b) else 0
+
+
+def _compare(test: Test, values: list[list[float]]) -> tuple[str, str]:
+    if test.kind in ("falls", "grows"):
+        side = apart(values[-1], values[0])  # the last cell against the first
+        means = [sum(v) / len(v) for v in values]
+        sign = -1 if test.kind == "falls" else 1
+        monotone = all(sign * (b - a) > 0 for a, b in zip(means, means[1:]))
+        if side == -sign:
+            return "fails", "the ends differ the other way: their seeds do not overlap"
+        if monotone and side == sign:
+            return "holds", "the means are monotone and the ends' seeds do not overlap"
+        return "unresolved at three seeds", "the ends' seeds overlap" if monotone else "the means are not monotone"
+    side = apart(values[0], values[1])
+    wanted = {"lower": -1, "higher": 1, "not_higher": 1, "not_lower": -1}[test.kind]
+    if test.kind.startswith("not_"):
+        if side == wanted:
+            return "fails", "the seeds do not overlap, in the direction the claim rules out"
+        return "holds", "no difference in the direction the claim rules out"
+    if side == wanted:
+        return "holds", "the seeds do not overlap"
+    if side == -wanted:
+        return "fails", "the seeds do not overlap, the other way"
+    return "unresolved at three seeds", "the seeds overlap"
+
+
+def verdict(test: Test, records: Sequence[dict], seeds: int = 3) -> dict:
+    """Apply one test to the finished runs.
+
+    Returns:
+        {"claim", "metric", "finished", "planned", "verdict", "why"}: ``verdict`` is "holds", "fails",
+        "unresolved at three seeds", or "unresolved" while fewer than ``seeds`` seeds of a cell have finished.
+    """
+    if seeds < 2:
+        raise ValueError(f"the rule needs at least 2 seeds a cell, got {seeds}")
+    values = [cell_values(records, cell, test.metric) for cell in test.cells]
+    finished, planned = sum(min(len(v), seeds) for v in values), seeds * len(values)
+    result = {"claim": test.claim, "metric": test.metric, "finished": finished, "planned": planned}
+    if finished < planned:
+        return {**result, "verdict": "unresolved", "why": f"{finished} of {planned} runs finished"}
+    word, why = _compare(test, values)
+    return {**result, "verdict": word, "why": why}
+
+
+def claims(verdicts: Sequence[dict]) -> dict[str, str]:
+    """claim -> its verdict over its tests: "holds" when all hold, "fails" when one fails, "unresolved" otherwise."""
+    out: dict[str, list[str]] = {}
+    for v in verdicts:
+        out.setdefault(v["claim"], []).append(v["verdict"])
+    return {claim: "fails" if "fails" in words else "holds" if set(words) == {"holds"} else "unresolved"
+            for claim, words in out.items()}
+
+
+def describe(test: Test) -> str:
+    """What a test compares, in one line: "cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < 0",
+    "cd falls over M 8 ... 24"."""
+    first, last = test.cells[0], test.cells[-1]
+    varied = [k for k in first if first[k] != last.get(k)]
+    fixed = [k for k in first if k not in varied and k not in ("category", "distance")]
+    where = "".join(f" at {k} {first[k]:g}" for k in fixed)
+    if test.kind in ("falls", "grows"):
+        return f"{test.metric}{where} {test.kind[:-1]}s over {' '.join(varied)} {first[varied[0]]:g} ... {last[varied[0]]:g}"
+    sign = {"lower": "<", "higher": ">", "not_higher": "not >", "not_lower": "not <"}[test.kind]
+    name = lambda cell: " ".join(f"{cell[k]:g}" if isinstance(cell[k], float) else str(cell[k]) for k in varied)  # noqa: E731
+    label = "" if all(isinstance(first[k], str) for k in varied) else " ".join(varied) + " "
+    return f"{test.metric}{where}: {label}{name(first)} {sign} {name(last)}"
+
+
+def main() -> int:
+    """Print, for each table, the finished seeds of every cell and the verdict of every test."""
+    for table in ABLATIONS:
+        records = read_records(table)
+        print(f"{table}: {len(records)} of {len(planned_runs(table))} runs finished")
+        for row in cells(table, records):
+            print("  " + ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("finished", "planned"))
+                  + f": {row['finished']} of {row['planned']} seeds")
+        for test in TESTS[table]:
+            v = verdict(test, records)
+            print(f"  {describe(test)}: {v['verdict']} ({v['why']})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
