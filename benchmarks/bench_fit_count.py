@@ -73,7 +73,7 @@ def legs(category: str, n: int) -> dict:
     out = {count: {"cuboids_per_leg": [], "legs_per_cuboid": [], "chamfer": [], "cuboids": [], "seconds": []}
            for count in COUNTS}
     for index in TEST_SPLIT[:n].tolist():
-        shape = make_shape(category, index, n_points=2048)
+        shape = make_shape(category, index, n_points=2048, version=1)  # the committed results' shapes
         for count in COUNTS:
             result, seconds = fit(shape.points, shape.normals, count)
             c = part_concision(torch.as_tensor(result.labels)[None], torch.as_tensor(shape.labels)[None],

@@ -1,7 +1,7 @@
 """How large an input cuboidlib handles: time and peak memory of reading, normals and distances.
 
 Each case runs in a fresh process (so its peak resident memory is its own) on one thread, and
-prints its wall time and peak memory. README's "Limits" section quotes these figures.
+prints its wall time and peak memory. docs/limits.md and benchmarks/README.md quote these figures.
 
     python benchmarks/bench_limits.py            # all cases (about 2 minutes on one laptop core)
     python benchmarks/bench_limits.py --quick    # small sizes only, a smoke test

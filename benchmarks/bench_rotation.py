@@ -99,7 +99,7 @@ def procedural_shapes(category: str, count: int) -> list[dict]:
     """The first ``count`` shapes of the category's test split, upright, with part labels."""
     out = []
     for index in split_indices(1000, (0.7, 0.1, 0.2), 0)["test"][:count].tolist():
-        s = make_shape(category, index, n_points=NET_POINTS)
+        s = make_shape(category, index, n_points=NET_POINTS, version=1)  # the committed networks' shapes
         out.append({"name": f"{category}_{index}", "key": index, "points": s.points.astype(np.float64),
                     "normals": s.normals.astype(np.float64), "labels": s.labels, "file": None})
     return out

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RECIPE = ROOT / "data_samples" / "checkpoints" / "configs" / "15min"
 #: The minutes the recipe is sized for, on a 2-core machine, from the command's start to its card.
 RECIPE_MINUTES = 15.0
-#: The course's targets (README): test mIoU %, N_AC, and for every category the same three more.
+#: The course's targets (experiments/fifteen/README.md): test mIoU %, N_AC, and for every category the same three more.
 TARGETS = {"chair": (85, 8), "table": (95, 6), "airplane": (70, 9), "animal": (80, 7)}
 KMEANS_FACTOR, BOX_DISTANCE = 3.0, 0.01
 

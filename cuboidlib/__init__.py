@@ -2,7 +2,7 @@
 
 It implements Yang & Chen, "Unsupervised Learning for Cuboid Shape Abstraction via Joint
 Segmentation from Point Clouds" (SIGGRAPH 2021). Each module is named after a concept of the paper;
-see README.md for the map from the paper's sections and equations to modules.
+see docs/modules.md for the map from the paper's sections and equations to modules.
 
 The public API, in three lines::
 

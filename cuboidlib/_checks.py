@@ -41,7 +41,7 @@ __all__ = [
 # The limits: every path that samples, generates, allocates or repeats something checks its size against one of
 # these with check_size before any work (for arrays as for files), so that a size too large is a clear error that
 # names its limit, not an allocator failure or an unbounded run. They admit the paper's scale (4,096 points per
-# shape, 2,000 shapes, 16 cuboids) with a wide margin. The README's "Limits" section lists them.
+# shape, 2,000 shapes, 16 cuboids) with a wide margin. docs/limits.md lists them.
 
 
 class Limit(int):

@@ -93,6 +93,12 @@ def _add_samples_command(sub) -> None:
     p.add_argument("--points", type=int, default=2048, help="points per point cloud (default: 2048)")
     p.add_argument("--seed", type=int, default=0, help="collection seed (default: 0)")
     p.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
+    p.add_argument("--generator-version", type=int, choices=(1, 2), default=2,
+                   help="procedural generator (default: 2, the newest; the committed data_samples/ are version 1's, "
+                   "their figure samples.png; another version's figure is samples_v<version>.png)")
+    p.add_argument("--categories", type=_part_names, default=None, metavar="NAMES",
+                   help="comma-separated categories (default: chair,table,airplane,animal)")
+    p.add_argument("--figure-only", action="store_true", help="draw the figure only, write no sample files")
     p.add_argument("--force", action="store_true",
                    help="replace sample files that are already there (default: refuse, naming them; the committed "
                    "data_samples/ are the course's inputs)")
@@ -102,19 +108,27 @@ def _add_samples_command(sub) -> None:
 def _cmd_samples(args) -> int:
     from ._checks import MAX_SEED, MAX_SHAPE_POINTS, MAX_SHAPES  # imports torch: start-up time
     from .io import data_sample_files, write_data_samples  # imports torch: start-up time
+    from .shapes import CATEGORIES  # imports torch: start-up time
 
     if args.per_category < 1 or args.points < 1 or args.seed < 0:
         raise UserError("--per-category and --points must be positive and --seed non-negative")
     check_sizes(("--per-category", args.per_category, MAX_SHAPES, 1), ("--points", args.points, MAX_SHAPE_POINTS, 1),
                 ("--seed", args.seed, MAX_SEED, 0))
-    files = data_sample_files(args.out, args.per_category, figure=not args.no_figure)
+    if args.categories and not set(args.categories) <= set(CATEGORIES):
+        raise UserError(f"--categories: expected some of {','.join(CATEGORIES)}, got {','.join(args.categories)}")
+    if args.figure_only and args.no_figure:
+        raise UserError("--figure-only and --no-figure leave nothing to write: give one")
+    chosen = dict(version=args.generator_version, figure_only=args.figure_only,
+                  **({"categories": args.categories} if args.categories else {}))
+    files = data_sample_files(args.out, args.per_category, figure=not args.no_figure, **chosen)
     check_outputs([("--out", args.out), *(("--out", f) for f in files)])
     present = [str(f) for f in files if os.path.lexists(f)]
     if present and not args.force:
         raise UserError(f"--out {args.out}: already holds {len(present)} of the sample files ({', '.join(present[:3])}"
                         f"{', ...' if len(present) > 3 else ''}); choose another folder, or replace them (--force)")
     hold_folder(args, args.out)
-    written = write_data_samples(args.out, args.per_category, args.points, args.seed, figure=not args.no_figure)
+    written = write_data_samples(args.out, args.per_category, args.points, args.seed, figure=not args.no_figure,
+                                 **chosen)
     print(f"wrote {len(written)} files to {args.out}")
     return 0
 
@@ -145,6 +159,9 @@ def _add_train_command(sub) -> None:
                    "(with --category chair, table or airplane), the authors' data layout (<category>_train.npy ...) or "
                    "any folder of point-cloud / mesh files")
     p.add_argument("--data-seed", type=int, help="seed of the collection")
+    p.add_argument("--generator-version", type=int, choices=(1, 2),
+                   help="procedural generator (default: the newest, 2; a --config file without generator_version: 1, "
+                   "the shapes of the committed networks)")
     p.add_argument("--split", type=float, nargs=3, dest="split_fractions", metavar=("TRAIN", "VAL", "TEST"),
                    help="split fractions (default 0.7 0.1 0.2)")
     p.add_argument("--split-seed", type=int, help="seed of the train/validation/test split")
@@ -187,6 +204,7 @@ def _train_config_from_args(args):
     """Defaults (or the resumed run's config) < --config file < flags < --set."""
     from .checkpoint import load_checkpoint  # imports torch: start-up time
     from .config import read_config_file  # imports torch: start-up time
+    from .dataset import UNVERSIONED_GENERATOR  # imports torch: start-up time
     from .losses import LossConfig  # imports torch: start-up time
     from .model import ModelConfig  # imports torch: start-up time
     from .train import TrainConfig  # imports torch: start-up time
@@ -202,13 +220,15 @@ def _train_config_from_args(args):
                 data[key] = value
 
     if args.config:
-        merge(read_config_file(args.config))
+        file = read_config_file(args.config)
+        merge({"generator_version": UNVERSIONED_GENERATOR, **file})  # a file written before the field: version 1
     if args.model_size:
         data["model"] = (ModelConfig.small() if args.model_size == "small" else ModelConfig()).to_dict()
     if args.loss_preset:
         data["loss"] = (LossConfig.authors_code() if args.loss_preset == "authors_code" else LossConfig()).to_dict()
     flags = {k: getattr(args, k) for k in ("max_minutes", "max_steps", "epochs", "category", "n_shapes", "n_points",
-                                           "data_dir", "data_seed", "split_fractions", "split_seed", "lr",
+                                           "data_dir", "data_seed", "generator_version", "split_fractions",
+                                           "split_seed", "lr",
                                            "batch_size", "checkpoint_every", "validate_every", "seed", "device",
                                            "num_threads", "compiled_kernels")}
     merge({k: v for k, v in flags.items() if v is not None})
@@ -336,6 +356,9 @@ def _add_evaluate_command(sub) -> None:
                    "layout or a folder of mesh / point cloud files (labels score the mIoU when the files have them); "
                    "every shape of it unless --split is given")
     p.add_argument("--category", help="the category to read from --data-dir (default: the checkpoint's)")
+    p.add_argument("--generator-version", type=int, choices=(1, 2),
+                   help="score on the shapes of this procedural generator (default: the checkpoint's, from its config; "
+                   "a config without generator_version: 1)")
     p.add_argument("--part-names", type=_part_names, metavar="NAMES",
                    help="comma-separated names of the data's part labels (default: the category's, "
                    "cuboidlib.shapes.PART_NAMES, for files whose labels have no names)")
@@ -381,6 +404,10 @@ def _cmd_evaluate(args) -> int:
         check_outputs([("--json", Path(args.json))], [checkpoint, card_path(checkpoint), args.data_dir])
     model, state, _ = _load_model(args.checkpoint, args.device)
     config = TrainConfig.from_dict(state["config"])
+    if args.data_dir is not None and args.generator_version is not None:
+        raise UserError("--generator-version chooses procedural shapes; --data-dir reads files instead: give one")
+    if args.generator_version is not None:
+        config = config.replace(generator_version=args.generator_version)
     if args.data_dir is not None:
         config = config.replace(data_dir=args.data_dir, category=args.category or config.category)
     elif config.data_dir is not None:  # a folder written in a file is never read unasked
@@ -411,12 +438,13 @@ def _cmd_evaluate(args) -> int:
         boxes = args.baseline_boxes or predict_cuboids(model, shapes, args.batch_size,
                                                        centroids)[0].num_existing().tolist()
         results.append(evaluate_baseline(shapes, boxes, **options))
-    data = f", data folder {config.data_dir}" if config.data_dir else ""
+    data = f", data folder {config.data_dir}" if config.data_dir else f", generator version {config.generator_version}"
     scope = (f"every shape ({len(shapes)} shapes" if split == "all" else
-             f"{split} split ({len(shapes)} of {len(every)} shapes{'; --split all scores every one' if data else ''}")
+             f"{split} split ({len(shapes)} of {len(every)} shapes{'; --split all scores every one' if config.data_dir else ''}")
     print(format_table(results, f"{args.checkpoint}: {config.category}{data}, {scope}, {config.n_points} points each)"))
     if args.json:
-        out = {"checkpoint": str(args.checkpoint), "split": split, "config": config.to_dict(), "results": results}
+        out = {"checkpoint": str(args.checkpoint), "split": split, "config": config.to_dict(), "results": results,
+               "generator_version": None if config.data_dir else config.generator_version}
         write_text_atomic(args.json, json.dumps(out, indent=2) + "\n")
     return 0
 

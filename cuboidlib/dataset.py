@@ -35,10 +35,11 @@ from .io import (
     shapenet_part_files,
     shapenet_part_labels,
 )
-from .shapes import CATEGORIES, PART_NAMES, ShapeCollection, make_collection
+from .shapes import (CATEGORIES, GENERATOR_VERSION, PART_NAMES, ShapeCollection, check_generator_version,
+                     make_collection)
 
 __all__ = [
-    "DataConfig", "DATA_FIELDS",
+    "DataConfig", "DATA_FIELDS", "UNVERSIONED_GENERATOR",
     "PAPER_ROTATIONS_DEG", "PointCloudDataset", "rotate_about_y", "ShapeSet", "split_indices", "load_shapes",
     "load_splits",
     "data_layout",
@@ -60,6 +61,10 @@ class DataConfig(ConfigDict):
         data_dir: a folder of point-cloud / mesh files to use instead of a procedural collection.
         split_fractions: (train, validation, test) fractions of the shapes, summing to 1.
         split_seed: seed of the permutation that assigns shapes to the splits.
+        generator_version: the procedural generator (:data:`cuboidlib.shapes.GENERATOR_VERSIONS`; ignored with
+            ``data_dir``). The default is the newest; a config dict or file without the field means
+            :data:`UNVERSIONED_GENERATOR` (1), the shapes of every config written before the field, the committed
+            networks' among them.
     """
 
     category: str = "chair"
@@ -69,9 +74,21 @@ class DataConfig(ConfigDict):
     data_dir: str | None = None
     split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
     split_seed: int = 0
+    generator_version: int = GENERATOR_VERSION
+
+    @classmethod
+    def from_dict(cls, data: dict):
+        """As :meth:`ConfigDict.from_dict`, with a missing ``generator_version`` read as :data:`UNVERSIONED_GENERATOR`."""
+        if isinstance(data, dict) and "generator_version" not in data:
+            data = {**data, "generator_version": UNVERSIONED_GENERATOR}
+        return super().from_dict(data)
 
     def __post_init__(self) -> None:
         name = type(self).__name__
+        try:
+            self.generator_version = check_generator_version(self.generator_version)
+        except ValueError as exc:
+            raise ValueError(f"{name}.generator_version: {exc}") from None
         if self.data_dir is None and self.category not in CATEGORIES:
             raise ValueError(f"{name}.category must be one of {CATEGORIES}, got {self.category!r}")
         for key in ("n_shapes", "n_points"):
@@ -99,6 +116,9 @@ class DataConfig(ConfigDict):
         if self.data_dir is not None:
             self.data_dir = str(self.data_dir)
 
+
+#: The generator version of a config written before ``generator_version`` existed: the shapes it was trained on.
+UNVERSIONED_GENERATOR = 1
 
 #: The fields of :class:`DataConfig`: two runs with equal values read the same shapes.
 DATA_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(DataConfig))
@@ -455,7 +475,7 @@ def load_shapes(config: DataConfig, progress: bool = False) -> ShapeSet:
 
     if config.data_dir is None:
         collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
-                                     progress=progress)
+                                     progress=progress, version=config.generator_version)
         dataset = PointCloudDataset(collection)
         part_names = PART_NAMES[config.category]
     else:

@@ -7,7 +7,14 @@ surface, with an outward normal and a part label (``PART_NAMES``) per point. Eac
 its optional parts (``structure``) and a coarse group for clustering (``structure_id``, an index into
 ``STRUCTURES``). Shapes are normalised as in :mod:`cuboidlib.normalization`. Shape i of a collection
 comes from a generator seeded with (seed, category, i), so a prefix of a larger collection equals the
-smaller one; collections are cached as npz, keyed by their arguments and :data:`GENERATOR_VERSION`.
+smaller one; collections are cached as npz, keyed by their arguments and the generator's version.
+
+**Versions.** ``version`` (of :func:`build_parts`, :func:`make_shape`, :func:`make_collection`) picks the
+generator: 1 makes the shapes that the committed networks were trained on, bit for bit, for ever; 2
+(:data:`GENERATOR_VERSION`, the default) adds what the real meshes of ``benchmarks/real_meshes/`` show and
+version 1 lacks (``experiments/transfer_causes.py``): light aircraft and fixed landing gear
+(:mod:`cuboidlib.shapes_airplane`), thighs labelled leg, posed tails and wider bodies
+(:mod:`cuboidlib.shapes_animal`). Chairs and tables are the same in both versions.
 """
 
 from __future__ import annotations
@@ -24,26 +31,19 @@ import trimesh
 
 from ._checks import MAX_COLLECTION_POINTS, MAX_SHAPE_POINTS, MAX_SHAPES, check_size
 from .normalization import normalize
-from .solids import (
-    Capsule,
-    Cylinder,
-    Ellipsoid,
-    Hexahedron,
-    RoundedBox,
-    Solid,
-    bar,
-    box,
-    frame_from_axis,
-    rotation_x,
-    rotation_z,
-    sample_union_surface,
-)
+from .shapes_airplane import airplane_v1, airplane_v2
+from .shapes_animal import animal_v1, animal_v2
+from .shapes_chair import chair
+from .shapes_table import table
+from .solids import Solid, sample_union_surface
 
 __all__ = [
     "CATEGORIES",
     "PART_NAMES",
     "STRUCTURES",
     "GENERATOR_VERSION",
+    "GENERATOR_VERSIONS",
+    "check_generator_version",
     "PART_COLORS",
     "Shape",
     "ShapeCollection",
@@ -70,12 +70,16 @@ PART_NAMES: dict[str, tuple[str, ...]] = {
 STRUCTURES: dict[str, tuple[str, ...]] = {
     "chair": ("legs4", "legs4+arms", "pedestal", "pedestal+arms", "sled", "sled+arms"),
     "table": ("legs4-rect", "legs4-round", "pedestal-rect", "pedestal-round", "trestle"),
-    "airplane": ("engines0", "engines0+t-tail", "engines2", "engines2+t-tail", "engines4", "engines4+t-tail"),
+    "airplane": ("engines0", "engines0+t-tail", "engines2", "engines2+t-tail", "engines4", "engines4+t-tail",
+                 "propeller"),  # propeller: light aircraft, generator version 2 only
     "animal": ("standard", "long-neck", "low-long", "stocky"),
 }
 
-#: Bumped whenever generated shapes change, so stale cache files are never reused.
-GENERATOR_VERSION = 1
+#: The generators, oldest first. A version's shapes never change; a change of the shapes is a new version.
+GENERATOR_VERSIONS: tuple[int, ...] = (1, 2)
+
+#: The default generator: the newest.
+GENERATOR_VERSION = GENERATOR_VERSIONS[-1]
 
 #: RGB colours of part labels 0, 1, 2, 3 in figures (and in exported sample meshes).
 PART_COLORS: tuple[tuple[float, float, float], ...] = (
@@ -85,516 +89,12 @@ PART_COLORS: tuple[tuple[float, float, float], ...] = (
     (0.839, 0.153, 0.157),
 )
 
-_DEG = math.pi / 180
-
-
-def _pick(rng: np.random.Generator, options: Sequence[str], probs: Sequence[float]) -> str:
-    return options[int(np.searchsorted(np.cumsum(probs), rng.random() * sum(probs), side="right"))]
-
-
-def _frame_block(origin, axes, x, a, b, label: int) -> Hexahedron:
-    """A hexahedron spanning ranges ``x``, ``a``, ``b`` along the three ``axes`` from ``origin``."""
-    ex, eu, ev = (np.asarray(v, dtype=float) for v in axes)
-    corners = [
-        origin + x[i & 1] * ex + a[(i >> 1) & 1] * eu + b[(i >> 2) & 1] * ev for i in range(8)
-    ]
-    return Hexahedron(np.array(corners), label)
-
-
-def _wing(root_le_z: float, chord: float, taper: float, span: float, sweep: float, thickness: float) -> np.ndarray:
-    """Corners (8, 3) of a tapered swept wing half along +x, root at x = 0, centred on y = 0.
-
-    Root and tip chords are parallel to z, so every face is planar. Corner bits: x (root/tip),
-    y (bottom/top), z (trailing/leading edge).
-    """
-    corners = np.empty((8, 3))
-    for i in range(8):
-        tip = i & 1
-        c = chord * (taper if tip else 1.0)
-        t = thickness * (taper if tip else 1.0)
-        le = root_le_z - (span * math.tan(sweep) if tip else 0.0)
-        corners[i] = (span if tip else 0.0, t / 2 if (i >> 1) & 1 else -t / 2, le if (i >> 2) & 1 else le - c)
-    return corners
-
-
-# --------------------------------------------------------------------------------------- chair
-# Seat box or rounded box; back solid or slatted (horizontal slats or vertical spindles), maybe tilted
-# backwards; four legs (square or round, maybe splayed, maybe with stretchers), a pedestal on a star
-# of 4 or 5 spokes (maybe with casters) or two sled runners; optional armrests with their supports.
-
-
-def _chair(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
-    BACK, SEAT, LEG, ARM = range(4)
-    U = rng.uniform
-    legs_type = _pick(rng, ("legs4", "pedestal", "sled"), (0.5, 0.25, 0.25))
-    arms = rng.random() < 0.4
-    slatted = rng.random() < 0.4
-    tilted = rng.random() < 0.5
-    stretchers = legs_type == "legs4" and rng.random() < 0.4
-    parts: list[Solid] = []
-
-    W, D, T, H = U(0.40, 0.62), U(0.38, 0.60), U(0.03, 0.10), U(0.38, 0.52)
-    seat_c = np.array([0.0, H - T / 2, 0.0])
-    if rng.random() < 0.4:
-        r = U(0.4, 0.95) * T / 2
-        parts.append(RoundedBox(seat_c, np.eye(3), [W / 2 - r, T / 2 - r, D / 2 - r], r, SEAT))
-    else:
-        parts.append(box(seat_c, [W / 2, T / 2, D / 2], label=SEAT))
-
-    _chair_back(rng, W, D, T, H, tilted, slatted, parts, BACK)
-    top_y = H - T / 2
-    if legs_type == "legs4":
-        _chair_legs(rng, W, D, top_y, stretchers, parts, LEG)
-    elif legs_type == "pedestal":
-        _chair_pedestal(rng, top_y, parts, LEG)
-    else:
-        _chair_sled(rng, W, D, top_y, parts, LEG)
-    if arms:
-        _chair_arms(rng, W, D, H, top_y, parts, ARM)
-    structure = legs_type + ("+stretchers" if stretchers else "") + ("+arms" if arms else "")
-    structure += "+slatted-back" if slatted else "+solid-back"
-    structure += "+tilted" if tilted else ""
-    return parts, structure, legs_type + ("+arms" if arms else "")
-
-
-def _chair_back(rng, W, D, T, H, tilted, slatted, parts, BACK) -> None:
-    """The back: a frame pivoting about the seat's rear top edge, leaning backwards by tau; solid or slatted."""
-    U = rng.uniform
-    tau = U(6, 20) * _DEG if tilted else 0.0
-    Hb, Wb, Tb = U(0.30, 0.60), W * U(0.8, 1.0), U(0.025, 0.07)
-    P = np.array([0.0, H, -D / 2 + U(0.0, 0.02)])
-    axes = ([1.0, 0, 0], [0, math.cos(tau), -math.sin(tau)], [0, math.sin(tau), math.cos(tau)])
-    below, top = 0.6 * T / math.cos(tau), Hb / math.cos(tau)
-    if not slatted:
-        parts.append(_frame_block(P, axes, (-Wb / 2, Wb / 2), (-below, top), (0, Tb), BACK))
-    else:
-        ws, hr = U(0.03, 0.05), U(0.04, 0.10)
-        for s in (-1, 1):
-            parts.append(_frame_block(P, axes, sorted((s * Wb / 2, s * (Wb / 2 - ws))), (-below, top), (0, Tb), BACK))
-        inner = (-Wb / 2 + ws / 2, Wb / 2 - ws / 2)
-        parts.append(_frame_block(P, axes, inner, (top - hr, top), (0, Tb), BACK))
-        if rng.random() < 0.5:  # horizontal slats
-            k, hs = int(rng.integers(2, 5)), U(0.03, 0.06)
-            for y in np.linspace(0.15 * top, top - hr - 0.05 - hs, k):
-                parts.append(_frame_block(P, axes, inner, (y, y + hs), (0.2 * Tb, 0.8 * Tb), BACK))
-        else:  # vertical spindles from the seat into the top rail
-            k, wsp = int(rng.integers(3, 7)), U(0.02, 0.035)
-            for x in np.linspace(-Wb / 2 + ws, Wb / 2 - ws, k + 2)[1:-1]:
-                parts.append(_frame_block(P, axes, (x - wsp / 2, x + wsp / 2), (-below, top - hr / 2),
-                                          (0.2 * Tb, 0.8 * Tb), BACK))
-
-
-def _chair_legs(rng, W, D, top_y, stretchers, parts, LEG) -> None:
-    """Four legs (maybe splayed) and maybe stretchers between them (a ring or an H)."""
-    U = rng.uniform
-    lw, round_legs = U(0.025, 0.05), rng.random() < 0.4
-    inset = lw / 2 + U(0.005, 0.05)
-    splay = U(2, 8) * _DEG if rng.random() < 0.35 else 0.0
-    out = top_y * math.tan(splay)
-    tops, feet = [], []
-    for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-        a = np.array([sx * (W / 2 - inset), top_y, sz * (D / 2 - inset)])
-        b = a + np.array([sx * out, -top_y, sz * out])
-        tops.append(a)
-        feet.append(b)
-        parts.append(bar(a, b, lw, LEG, round_legs))
-    if stretchers:
-        hs, sw = U(0.08, 0.25), lw * U(0.5, 0.8)
-        at = [f + (t - f) * hs / top_y for t, f in zip(tops, feet)]  # leg axes at height hs
-        if rng.random() < 0.5:
-            pairs = [(0, 1), (1, 2), (2, 3), (3, 0)]
-            for i, j in pairs:
-                parts.append(bar(at[i], at[j], sw, LEG, round_legs))
-        else:  # H pattern: two side bars and a cross bar between their midpoints
-            parts.append(bar(at[0], at[3], sw, LEG, round_legs))
-            parts.append(bar(at[1], at[2], sw, LEG, round_legs))
-            parts.append(bar((at[0] + at[3]) / 2, (at[1] + at[2]) / 2, sw, LEG, round_legs))
-
-
-def _chair_pedestal(rng, top_y, parts, LEG) -> None:
-    """An office-chair column on a star of 4 or 5 spokes, maybe with casters."""
-    U = rng.uniform
-    casters = rng.random() < 0.6
-    rc, rw = U(0.02, 0.04), U(0.02, 0.03)
-    base_y = U(0.06, 0.10) if casters else U(0.03, 0.05)
-    spoke_w, n_spokes, Ls = U(0.025, 0.045), 5 if rng.random() < 0.8 else 4, U(0.22, 0.32)
-    hub_r = max(rc * 1.6, spoke_w)
-    parts.append(Cylinder.between([0, base_y - spoke_w, 0], [0, base_y + 0.04, 0], hub_r, LEG))
-    parts.append(Cylinder.between([0, base_y, 0], [0, top_y, 0], rc, LEG))
-    tip_y = 1.6 * rw if casters else spoke_w / 2
-    phase = U(0, 2 * math.pi)
-    for k in range(n_spokes):
-        ang = phase + 2 * math.pi * k / n_spokes
-        tip = np.array([Ls * math.sin(ang), tip_y, Ls * math.cos(ang)])
-        parts.append(bar([0, base_y, 0], tip, spoke_w, LEG))
-        if casters:
-            parts.append(Capsule([tip[0], rw, tip[2]], [tip[0], rw, tip[2]], rw, LEG))
-
-
-def _chair_sled(rng, W, D, top_y, parts, LEG) -> None:
-    """Sled runners: a U-shaped tube on each side."""
-    U = rng.uniform
-    rt = U(0.008, 0.016)
-    xs = W / 2 - rt - U(0.0, 0.04)
-    zf, zb = D / 2 + U(-0.03, 0.06), -D / 2 - U(-0.03, 0.05)
-    for s in (-1, 1):
-        f, b = np.array([s * xs, rt, zf]), np.array([s * xs, rt, zb])
-        parts.append(Capsule(b, f, rt, LEG))
-        parts.append(Capsule(f, [s * xs, top_y, D / 2 - 0.05], rt, LEG))
-        parts.append(Capsule(b, [s * xs, top_y, -D / 2 + 0.05], rt, LEG))
-
-
-def _chair_arms(rng, W, D, H, top_y, parts, ARM) -> None:
-    """Two arm rests, each on two supports."""
-    U = rng.uniform
-    ha, aw, at_ = U(0.15, 0.25), U(0.04, 0.07), U(0.02, 0.04)
-    z_rear, z_front = -D / 2 + 0.01, D / 2 - U(0.0, 0.06)
-    sup_w, round_sup = U(0.025, 0.04), rng.random() < 0.3
-    for s in (-1, 1):
-        xa = s * (W / 2 - aw / 2 - U(0.0, 0.02))
-        parts.append(box([xa, H + ha, (z_rear + z_front) / 2], [aw / 2, at_ / 2, (z_front - z_rear) / 2], label=ARM))
-        for z in (z_front - 0.03, z_rear + 0.03):
-            parts.append(bar([xa, top_y, z], [xa, H + ha, z], min(sup_w, aw * 0.9), ARM, round_sup))
-
-
-# --------------------------------------------------------------------------------------- table
-# Rectangular (box or rounded) or round top; four legs, a pedestal (disc or cross-foot base) or
-# trestle ends (post + foot + cleat); optional shelf, stretchers, apron boards or trestle stretcher.
-
-
-def _table(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
-    TOP, LEG = range(2)
-    U = rng.uniform
-    round_top = rng.random() < 0.4
-    support = _pick(rng, ("legs4", "pedestal"), (0.4, 0.6)) if round_top else _pick(
-        rng, ("legs4", "pedestal", "trestle"), (0.5, 0.2, 0.3))
-    H, T = U(0.42, 0.78), U(0.025, 0.07)
-    parts: list[Solid] = []
-    extras: list[str] = []
-    up = frame_from_axis([0.0, 1.0, 0.0])
-
-    if round_top:
-        R = U(0.35, 0.65)
-        parts.append(Cylinder([0, H - T / 2, 0], up, R, T / 2, TOP))
-        W = D = 2 * R
-        reach = R  # distance from the centre to the edge, for supports
-    else:
-        W = U(0.8, 1.2) if support == "pedestal" else U(0.8, 1.8)
-        D = U(0.5, min(1.0, W))
-        if rng.random() < 0.3:
-            r = U(0.4, 0.95) * T / 2
-            parts.append(RoundedBox([0, H - T / 2, 0], np.eye(3), [W / 2 - r, T / 2 - r, D / 2 - r], r, TOP))
-        else:
-            parts.append(box([0, H - T / 2, 0], [W / 2, T / 2, D / 2], label=TOP))
-        reach = min(W, D) / 2
-    top = _TableTop(H, T, W, D, reach, round_top, up)
-    if support == "legs4":
-        _table_legs(rng, top, parts, extras, LEG)
-    elif support == "pedestal":
-        _table_pedestal(rng, top, parts, extras, LEG)
-    else:
-        _table_trestle(rng, top, parts, extras, LEG)
-    coarse = "trestle" if support == "trestle" else f"{support}-{'round' if round_top else 'rect'}"
-    structure = coarse + "".join("+" + e for e in extras)
-    return parts, structure, coarse
-
-
-@dataclass(frozen=True)
-class _TableTop:
-    """The sizes of a table top that its supports are built from (a round top has W = D = 2R)."""
-
-    H: float  # height of the top surface
-    T: float  # thickness
-    W: float  # width (x)
-    D: float  # depth (z)
-    reach: float  # distance from the centre to the nearest edge
-    round: bool
-    up: np.ndarray  # frame with +y as the axis, for vertical cylinders
-
-    @property
-    def y(self) -> float:  # height of the top's mid-plane
-        return self.H - self.T / 2
-
-
-def _table_legs(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> None:
-    """Four legs (maybe splayed), then a shelf or stretchers, and on rectangular tops maybe an apron."""
-    U, top_y = rng.uniform, top.y
-    lw, round_legs = U(0.03, 0.08), rng.random() < 0.4
-    splay = U(2, 7) * _DEG if rng.random() < 0.25 else 0.0
-    out = top_y * math.tan(splay)
-    if top.round:
-        rl = top.W / 2 * U(0.45, 0.7)
-        phase = 45 * _DEG
-        corners = [(rl * math.cos(phase + k * math.pi / 2), rl * math.sin(phase + k * math.pi / 2)) for k in range(4)]
-    else:
-        inset = lw / 2 + U(0.01, 0.12)
-        corners = [(sx * (top.W / 2 - inset), sz * (top.D / 2 - inset))
-                   for sx, sz in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    tops, feet = [], []
-    for cx, cz in corners:
-        a = np.array([cx, top_y, cz])
-        d = np.array([cx, 0.0, cz]) / math.hypot(cx, cz)
-        b = np.array([cx, 0.0, cz]) + out * d
-        tops.append(a)
-        feet.append(b)
-        parts.append(bar(a, b, lw, LEG, round_legs))
-    extra = _pick(rng, ("none", "shelf", "stretchers"), (0.4, 0.3, 0.3))
-    hs = U(0.1, 0.3) * top.H
-    at = [f + (t - f) * hs / top_y for t, f in zip(tops, feet)]
-    if extra == "shelf":
-        extras.append("shelf")
-        ts = U(0.015, 0.03)
-        if top.round:
-            rs = float(np.linalg.norm(at[0][[0, 2]]))
-            parts.append(Cylinder([0, hs, 0], top.up, rs, ts / 2, LEG))
-        else:
-            hx, hz = abs(at[0][0]), abs(at[0][2])
-            parts.append(box([0, hs, 0], [hx, ts / 2, hz], label=LEG))
-    elif extra == "stretchers":
-        extras.append("stretchers")
-        sw = lw * U(0.4, 0.7)
-        if rng.random() < 0.5:
-            for i in range(4):
-                parts.append(bar(at[i], at[(i + 1) % 4], sw, LEG, round_legs))
-        else:  # crossing diagonals
-            parts.append(bar(at[0], at[2], sw, LEG, round_legs))
-            parts.append(bar(at[1], at[3], sw, LEG, round_legs))
-    if not top.round and rng.random() < 0.4:
-        extras.append("apron")
-        ah, th = U(0.05, 0.12), min(U(0.015, 0.03), lw * 0.8)
-        yc, hh = top_y - (ah + top.T / 2) / 2, (ah + top.T / 2) / 2
-        for i in range(4):
-            a, b = tops[i], tops[(i + 1) % 4]
-            mid = (a + b) / 2
-            length = float(np.linalg.norm((b - a)[[0, 2]]))
-            along = abs(b[0] - a[0]) > abs(b[2] - a[2])
-            half = [length / 2, hh, th / 2] if along else [th / 2, hh, length / 2]
-            parts.append(box([mid[0], yc, mid[2]], half, label=LEG))
-
-
-def _table_pedestal(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> None:
-    """A central column on a disc base or on a four-footed cross base."""
-    U = rng.uniform
-    rc = U(0.04, 0.10)
-    bt = U(0.02, 0.05)
-    parts.append(Cylinder.between([0, bt / 2, 0], [0, top.y, 0], rc, LEG))
-    base_r = max(top.reach * U(0.45, 0.75), rc * 2.2)
-    if rng.random() < 0.5:
-        extras.append("disc-base")
-        parts.append(Cylinder([0, bt / 2, 0], top.up, base_r, bt / 2, LEG))
-    else:
-        extras.append("cross-base")
-        fh, fw = U(0.03, 0.06), U(0.04, min(0.08, 1.6 * rc))
-        phase = 0.0 if top.round else 45 * _DEG * rng.integers(0, 2)
-        for k in range(4):
-            ang = phase + k * math.pi / 2
-            tip = np.array([base_r * math.cos(ang), fh / 2, base_r * math.sin(ang)])
-            parts.append(bar([0, fh / 2, 0], tip, fw, LEG))
-        parts.append(Cylinder.between([0, 0, 0], [0, fh * 1.2, 0], rc * 1.3, LEG))
-
-
-def _table_trestle(rng, top: _TableTop, parts: list, extras: list, LEG: int) -> None:
-    """Trestle ends: post + foot (+ cleat under the top), optional stretcher between the posts."""
-    U, top_y, H, T = rng.uniform, top.y, top.H, top.T
-    inset, pw, pd = U(0.05, 0.2), U(0.04, 0.10), U(0.06, 0.25)
-    fh, pf, fl = U(0.04, 0.08), pw * U(1.1, 1.6), top.D * U(0.6, 0.95)
-    cleat = rng.random() < 0.6
-    xe = top.W / 2 - inset
-    for s in (-1, 1):
-        parts.append(box([s * xe, (fh / 2 + top_y) / 2, 0], [pw / 2, (top_y - fh / 2) / 2, pd / 2], label=LEG))
-        parts.append(box([s * xe, fh / 2, 0], [pf / 2, fh / 2, fl / 2], label=LEG))
-        if cleat:
-            ch = U(0.03, 0.05)
-            parts.append(box([s * xe, H - T - ch / 2 + T / 4, 0], [pf / 2, ch / 2 + T / 4, fl * 0.45], label=LEG))
-    if cleat:
-        extras.append("cleats")
-    if rng.random() < 0.6:
-        extras.append("stretcher")
-        sh, ss = U(0.15, 0.5) * H, U(0.03, min(0.06, pd * 0.9))
-        parts.append(box([0, sh, 0], [xe, ss / 2, ss / 2], label=LEG))
-
-
-# ------------------------------------------------------------------------------------ airplane
-# Fuselage capsule, or cylinder with an ellipsoidal nose and a tail cone; tapered swept wings (low,
-# mid or high, with dihedral); stabiliser and fin (conventional or T-tail); 0, 2 or 4 engines
-# (nacelle + pylon) under the wings, or 2 on the rear fuselage (always with a T-tail).
-
-
-def _airplane_tail(rng, fin_te: float, rf: float, t_tail: bool, parts: list, TAIL: int) -> None:
-    """The tail: a fin (span along +y, root inside the fuselage, trailing edge at z = fin_te) and a
-    horizontal stabiliser, on top of the fin (T-tail) or at the fuselage."""
-    U = rng.uniform
-    cf, hf, fin_taper = U(0.10, 0.20), U(0.10, 0.22), U(0.4, 0.8)
-    fin_sweep, tf = U(20, 50) * _DEG, 0.1 * cf
-    fin = _wing(fin_te + cf, cf, fin_taper, hf, fin_sweep, tf)[:, [1, 0, 2]]  # swap x <-> y
-    parts.append(Hexahedron(fin, TAIL))
-    cs, bs = U(0.08, 0.15), U(0.12, 0.25)
-    if t_tail:
-        tip_le = fin_te + cf - hf * math.tan(fin_sweep)
-        tip_te = tip_le - fin_taper * cf
-        margin = U(0.02, 0.05)
-        ts = max(0.1 * cs, 0.012)
-        parts.append(box([0, hf, (tip_le + tip_te) / 2], [bs, ts / 2, (tip_le - tip_te) / 2 + margin], label=TAIL))
-    else:
-        st_taper, st_sweep = U(0.4, 0.8), U(10, 40) * _DEG
-        st_le = fin_te + cs + U(0.0, 0.04)
-        y_s = U(-0.3, 0.3) * rf
-        halfs = _wing(st_le, cs, st_taper, bs, st_sweep, 0.1 * cs) @ rotation_z(U(0, 8) * _DEG).T + [0, y_s, 0]
-        parts.append(Hexahedron(halfs, TAIL))
-        parts.append(Hexahedron(halfs * [-1, 1, 1], TAIL))
-
-
-def _airplane(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
-    BODY, WING, TAIL, ENGINE = range(4)
-    U = rng.uniform
-    L, rf = 1.0, U(0.035, 0.07)
-    parts: list[Solid] = []
-
-    # Fuselage along z (nose at +z). [z0, z1] is the straight section of radius rf; at most
-    # `allow` behind z0 the body is still at least 0.78 rf thick (for tail roots).
-    if rng.random() < 0.5:
-        z0, z1 = -L / 2 + rf, L / 2 - rf
-        parts.append(Capsule([0, 0, z0], [0, 0, z1], rf, BODY))
-        allow = 0.6 * rf
-    else:
-        nose, tail = U(1.2, 3.0) * rf, U(2.5, 5.0) * rf
-        z0, z1 = -L / 2 + tail, L / 2 - nose
-        parts.append(Cylinder.between([0, 0, z0], [0, 0, z1], rf, BODY))
-        parts.append(Ellipsoid([0, 0, z1], np.eye(3), [0.98 * rf, 0.98 * rf, nose], BODY))
-        parts.append(Ellipsoid([0, 0, z0], np.eye(3), [0.98 * rf, 0.98 * rf, tail], BODY))
-        allow = 0.5 * tail
-
-    # Wings: two tapered swept halves whose root faces lie inside the fuselage.
-    c_r, taper, b = U(0.12, 0.28), U(0.25, 0.8), U(0.35, 0.65)
-    sweep, dihedral = U(0, 38) * _DEG, U(-4, 7) * _DEG
-    t_r = U(0.08, 0.13) * c_r
-    wing_pos = _pick(rng, ("low", "mid", "high"), (0.4, 0.3, 0.3))
-    y_room = 0.85 * rf - t_r / 2
-    y_w = {"low": -1.0, "mid": 0.0, "high": 1.0}[wing_pos] * y_room * U(0.6, 1.0)
-    z_le = float(np.clip(U(-0.05, 0.12) + c_r / 2, z0 + c_r + 0.01, z1 - 0.01))
-    half = _wing(z_le, c_r, taper, b, sweep, t_r) @ rotation_z(dihedral).T + [0, y_w, 0]
-    parts.append(Hexahedron(half, WING))
-    parts.append(Hexahedron(half * [-1, 1, 1], WING))
-
-    n_eng = int(_pick(rng, ("0", "2", "4"), (0.3, 0.45, 0.25)))
-    rear = n_eng == 2 and rng.random() < 0.3
-    t_tail = rear or rng.random() < 0.3
-    re, le = U(0.025, 0.045), U(0.12, 0.22)
-    if n_eng and not rear:
-        eta_min = (rf + re + 0.02) / b
-        etas = [max(U(0.25, 0.4), eta_min)]
-        if n_eng == 4:
-            etas.append(max(U(0.55, 0.7), etas[0] + (2 * re + 0.03) / b))
-        for eta in etas:
-            xe = eta * b
-            chord, thick = c_r * (1 - eta * (1 - taper)), t_r * (1 - eta * (1 - taper))
-            le_z = z_le - xe * math.tan(sweep)
-            wy = y_w + xe * math.sin(dihedral)
-            cy = wy - thick / 2 - U(0.2, 0.6) * re - re
-            z_front = le_z + U(0.3, 0.6) * le
-            zp0 = max(z_front - le + 0.01, le_z - 0.6 * chord)
-            zp1 = le_z - 0.1 * chord
-            for s in (-1, 1):
-                x = s * xe * math.cos(dihedral)
-                parts.append(Cylinder.between([x, cy, z_front - le], [x, cy, z_front], re, ENGINE))
-                parts.append(box([x, (cy + wy) / 2, (zp0 + zp1) / 2], [0.25 * re, (wy - cy) / 2, (zp1 - zp0) / 2],
-                                 label=ENGINE))
-    elif rear:
-        xn, yn = rf + re * U(0.6, 1.2), rf * U(0.1, 0.5)
-        zc = z0 + U(0.05, 0.12)
-        for s in (-1, 1):
-            parts.append(Cylinder.between([s * xn, yn, zc - le / 2], [s * xn, yn, zc + le / 2], re, ENGINE))
-            zp = min(0.3 * le, zc - z0 - 0.01)
-            parts.append(box([s * xn / 2, yn, zc], [xn / 2, 0.3 * re, zp], label=ENGINE))
-
-    _airplane_tail(rng, z0 - allow, rf, t_tail, parts, TAIL)
-
-    coarse = f"engines{n_eng}" + ("+t-tail" if t_tail else "")
-    structure = f"engines{n_eng}" + ("-rear" if rear else "") + ("+t-tail" if t_tail else "") + f"+{wing_pos}-wing"
-    return parts, structure, coarse
-
-
-# -------------------------------------------------------------------------------------- animal
-# Ellipsoid body; four legs of two capsules each (bent at the knee); neck capsule, head and snout
-# ellipsoids, optional ears; tail of one or two capsules. Body plans: standard, long-neck, low-long,
-# stocky.
-
-_ANIMAL_PLANS = {
-    # body half-height, half-width, hip height, leg radius, neck length, neck angle (deg),
-    # neck radius, head radii (x, y, z) ranges
-    "standard": ((0.15, 0.22), (0.12, 0.20), (0.45, 0.80), (0.035, 0.06), (0.15, 0.30), (30, 60),
-                 (0.05, 0.08), ((0.07, 0.10), (0.07, 0.10), (0.12, 0.18))),
-    "long-neck": ((0.15, 0.20), (0.12, 0.17), (0.80, 1.20), (0.03, 0.05), (0.55, 0.90), (55, 75),
-                  (0.04, 0.06), ((0.05, 0.08), (0.06, 0.09), (0.10, 0.15))),
-    "low-long": ((0.10, 0.14), (0.10, 0.14), (0.12, 0.25), (0.03, 0.045), (0.05, 0.15), (10, 30),
-                 (0.05, 0.08), ((0.07, 0.10), (0.06, 0.09), (0.12, 0.20))),
-    "stocky": ((0.25, 0.33), (0.22, 0.30), (0.25, 0.40), (0.06, 0.09), (0.15, 0.25), (15, 35),
-               (0.10, 0.14), ((0.10, 0.14), (0.10, 0.14), (0.14, 0.20))),
-}
-
-
-def _animal(rng: np.random.Generator) -> tuple[list[Solid], str, str]:
-    BODY, HEAD, LEG, TAIL = range(4)
-    U = rng.uniform
-    plan = _pick(rng, tuple(_ANIMAL_PLANS), (1, 1, 1, 1))
-    ry_r, rx_r, hip_r, lr_r, nl_r, na_r, nr_r, head_r = _ANIMAL_PLANS[plan]
-    long_tail = rng.random() < {"low-long": 0.8, "stocky": 0.2}.get(plan, 0.5)
-    ears = rng.random() < 0.5
-    rz, ry, rx = 0.5, U(*ry_r), U(*rx_r)
-    hip_y = U(*hip_r)
-    hb = hip_y + 0.4 * ry
-    pitch = U(-5, 5) * _DEG
-    parts: list[Solid] = [Ellipsoid([0, hb, 0], rotation_x(pitch), [rx, ry, rz], BODY)]
-
-    leg_r = U(*lr_r)
-    for sz in (1, -1):  # front legs (+z), hind legs (-z)
-        for sx in (-1, 1):
-            hip = np.array([sx * 0.55 * rx, hip_y, sz * 0.62 * rz])
-            knee = np.array([hip[0], hip_y * U(0.4, 0.6), hip[2] + sz * U(-0.06, 0.06)])
-            foot = np.array([hip[0] * U(1.0, 1.15), 0.75 * leg_r, hip[2] + U(-0.04, 0.04)])
-            parts.append(Capsule(hip, knee, leg_r, LEG))
-            parts.append(Capsule(knee, foot, 0.75 * leg_r, LEG))
-
-    # Neck (labelled head) and head.
-    ang = U(*na_r) * _DEG
-    base = np.array([0.0, hb + 0.45 * ry, 0.75 * rz])
-    end = base + U(*nl_r) * np.array([0.0, math.sin(ang), math.cos(ang)])
-    parts.append(Capsule(base, end, U(*nr_r), HEAD))
-    hr = np.array([U(*r) for r in head_r])
-    head_rot = rotation_x(U(0, 25) * _DEG)
-    hc = end + head_rot @ np.array([0.0, 0.3 * hr[1], 0.3 * hr[2]])
-    parts.append(Ellipsoid(hc, head_rot, hr, HEAD))
-    parts.append(Ellipsoid(hc + head_rot @ np.array([0, -0.2 * hr[1], 0.8 * hr[2]]), head_rot, hr * [0.55, 0.5, 0.5], HEAD))
-    if ears:
-        for s in (-1, 1):
-            parts.append(Ellipsoid(hc + head_rot @ np.array([s * 0.5 * hr[0], 0.85 * hr[1], -0.2 * hr[2]]), head_rot,
-                                   hr * [0.25, 0.45, 0.15], HEAD))
-
-    # Tail: one short capsule up and back, or two capsules curving down.
-    t0 = np.array([0.0, hb + 0.2 * ry, -0.85 * rz])
-    if long_tail:
-        tr = U(0.02, 0.04)
-        b1 = U(10, 50) * _DEG
-        t1 = t0 + U(0.2, 0.35) * np.array([0, -math.sin(b1), -math.cos(b1)])
-        b2 = b1 + U(10, 40) * _DEG
-        t2 = t1 + U(0.15, 0.3) * np.array([0, -math.sin(b2), -math.cos(b2)])
-        t1[1], t2[1] = max(t1[1], tr + 0.2 * hip_y), max(t2[1], 0.8 * tr + 0.15 * hip_y)  # clear of the floor
-        parts.append(Capsule(t0, t1, tr, TAIL))
-        parts.append(Capsule(t1, t2, 0.8 * tr, TAIL))
-    else:
-        b1 = -U(10, 40) * _DEG
-        parts.append(Capsule(t0, t0 + U(0.06, 0.15) * np.array([0, -math.sin(b1), -math.cos(b1)]),
-                             U(0.025, 0.045), TAIL))
-
-    structure = plan + ("+long-tail" if long_tail else "+short-tail") + ("+ears" if ears else "")
-    return parts, structure, plan
-
-
-_GENERATORS: dict[str, Callable[[np.random.Generator], tuple[list[Solid], str, str]]] = {
-    "chair": _chair,
-    "table": _table,
-    "airplane": _airplane,
-    "animal": _animal,
+#: The generator of each (category, version); chairs and tables are the same in every version.
+_GENERATORS: dict[tuple[str, int], Callable[[np.random.Generator], tuple[list[Solid], str, str]]] = {
+    ("chair", 1): chair, ("chair", 2): chair,
+    ("table", 1): table, ("table", 2): table,
+    ("airplane", 1): airplane_v1, ("airplane", 2): airplane_v2,
+    ("animal", 1): animal_v1, ("animal", 2): animal_v2,
 }
 
 
@@ -607,19 +107,39 @@ def _check_category(category: str) -> str:
     return category
 
 
+def check_generator_version(version) -> int:
+    """The generator version, checked.
+
+    Args:
+        version: one of :data:`GENERATOR_VERSIONS`.
+
+    Returns:
+        ``version`` as an int.
+
+    Raises:
+        ValueError: another value (a bool, a float, an unknown number).
+    """
+    if isinstance(version, bool) or not isinstance(version, (int, np.integer)) or int(version) not in GENERATOR_VERSIONS:
+        raise ValueError(f"generator version must be one of {GENERATOR_VERSIONS} (1: the shapes the committed networks "
+                         f"were trained on; {GENERATOR_VERSION}: the newest), got {version!r}")
+    return int(version)
+
+
 def _shape_rng(category: str, index: int, seed: int) -> np.random.Generator:
     if seed < 0 or index < 0:
         raise ValueError(f"seed and index must be non-negative integers, got seed={seed}, index={index}")
     return np.random.default_rng([int(seed), CATEGORIES.index(category), int(index)])
 
 
-def build_parts(category: str, index: int, seed: int = 0) -> tuple[list[Solid], str, int]:
+def build_parts(category: str, index: int, seed: int = 0,
+                version: int = GENERATOR_VERSION) -> tuple[list[Solid], str, int]:
     """The parts of shape ``index`` of a collection, before sampling and normalisation.
 
     Args:
         category: one of :data:`CATEGORIES`.
         index: the shape's index in the collection, >= 0.
         seed: the collection's seed, >= 0.
+        version: the generator, one of :data:`GENERATOR_VERSIONS` (1: the committed networks' shapes).
 
     Returns:
         ``(solids, structure, structure_id)``: the solids in generator units (metres), each labelled
@@ -628,7 +148,8 @@ def build_parts(category: str, index: int, seed: int = 0) -> tuple[list[Solid], 
         ``STRUCTURES[category]``.
     """
     _check_category(category)
-    solids, structure, coarse = _GENERATORS[category](_shape_rng(category, index, seed))
+    version = check_generator_version(version)
+    solids, structure, coarse = _GENERATORS[category, version](_shape_rng(category, index, seed))
     return solids, structure, STRUCTURES[category].index(coarse)
 
 
@@ -679,8 +200,8 @@ class Shape:
         return mesh
 
 
-def _sample_shape(category: str, index: int, seed: int, n_points: int):
-    solids, structure, sid = build_parts(category, index, seed)
+def _sample_shape(category: str, index: int, seed: int, n_points: int, version: int):
+    solids, structure, sid = build_parts(category, index, seed, version)
     rng = np.random.default_rng([int(seed), CATEGORIES.index(category), int(index), 1])  # sampling stream
     p, nn, idx = sample_union_surface(solids, n_points, rng)
     labels = np.array([s.label for s in solids])[idx]
@@ -688,7 +209,8 @@ def _sample_shape(category: str, index: int, seed: int, n_points: int):
     return solids, structure, sid, p, nn, labels, idx, center, scale
 
 
-def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 0) -> Shape:
+def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 0,
+               version: int = GENERATOR_VERSION) -> Shape:
     """Generate shape ``index`` of the collection ``(category, seed)``, with its analytic parts.
 
     Args:
@@ -696,14 +218,17 @@ def make_shape(category: str, index: int = 0, n_points: int = 2048, seed: int = 
         index: the shape's index in the collection.
         n_points: N, points sampled on its surface.
         seed: the collection's seed.
+        version: the generator, one of :data:`GENERATOR_VERSIONS`.
 
     Returns:
         A :class:`Shape` equal to entry ``index`` of ``make_collection(category, n, n_points, seed)``
         for any ``n > index``, plus its parts (for meshes and exact inside/outside tests).
     """
     _check_category(category)
+    version = check_generator_version(version)
     n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
-    solids, structure, sid, p, nn, labels, instances, center, scale = _sample_shape(category, index, seed, n_points)
+    solids, structure, sid, p, nn, labels, instances, center, scale = _sample_shape(category, index, seed, n_points,
+                                                                                           version)
     return Shape(
         category=category,
         points=p.astype(np.float32),
@@ -730,6 +255,7 @@ class ShapeCollection:
         seed: the collection's seed.
         instances: (S, N) int64 part instances (each point's solid, as in :attr:`Shape.instances`), or None
             for a collection file written without them.
+        generator_version: the generator that made it (a file written without it: 1).
     """
 
     category: str
@@ -740,6 +266,7 @@ class ShapeCollection:
     structure_ids: np.ndarray
     seed: int = 0
     instances: np.ndarray | None = None
+    generator_version: int = GENERATOR_VERSION
 
     @property
     def part_names(self) -> tuple[str, ...]:
@@ -770,7 +297,7 @@ class ShapeCollection:
             np.savez(f, category=np.array(self.category), points=self.points, normals=self.normals,
                      labels=self.labels, structures=np.asarray(self.structures, dtype=str),
                      structure_ids=self.structure_ids, seed=np.array(self.seed),
-                     generator_version=np.array(GENERATOR_VERSION), **extra)
+                     generator_version=np.array(self.generator_version), **extra)
         os.replace(f.name, path)
         return path
 
@@ -814,6 +341,9 @@ class ShapeCollection:
             raise ValueError(f"{path}: holds NaN or infinite coordinates")
         if labels.size and (labels.min() < 0 or labels.max() >= len(PART_NAMES[category])):
             raise ValueError(f"{path}: part labels outside 0 .. {len(PART_NAMES[category]) - 1}")
+        version = int(data.get("generator_version", 1))
+        if version not in GENERATOR_VERSIONS:
+            raise ValueError(f"{path}: generator version {version} is not one of {GENERATOR_VERSIONS}")
         instances = data.get("instances")
         if instances is not None:
             if instances.shape != labels.shape or instances.dtype.kind not in "iu" or \
@@ -823,7 +353,8 @@ class ShapeCollection:
             instances = instances.astype(np.int64)
         return cls(category=category, points=points, normals=normals, labels=labels.astype(np.int64),
                    structures=data["structures"], structure_ids=data["structure_ids"].astype(np.int64),
-                   seed=int(data.get("seed", 0)), instances=instances)
+                   seed=int(data.get("seed", 0)), instances=instances,
+                   generator_version=version)
 
 
 def default_cache_dir() -> Path:
@@ -840,6 +371,7 @@ def make_collection(
     cache_dir: str | os.PathLike | None = None,
     use_cache: bool = True,
     progress: bool = False,
+    version: int = GENERATOR_VERSION,
 ) -> ShapeCollection:
     """Generate (or load from the cache) ``n_shapes`` shapes of ``category`` with ``n_points`` each.
 
@@ -849,26 +381,29 @@ def make_collection(
         n_points: N, points per shape.
         seed: the collection's seed (shape i's generator is seeded with ``(seed, category, i)``).
         cache_dir: cache folder; None: :func:`default_cache_dir`. The file name encodes
-            ``(category, n_shapes, n_points, seed, GENERATOR_VERSION)``.
+            ``(category, n_shapes, n_points, seed, version)``.
         use_cache: read and write the cache; False always generates and writes nothing.
         progress: show a tqdm progress bar while generating.
+        version: the generator, one of :data:`GENERATOR_VERSIONS` (1: the committed networks' shapes).
 
     Returns:
         A :class:`ShapeCollection`: points (S, N, 3) and normals (S, N, 3) float32, labels and instances
         (S, N) int64.
     """
     _check_category(category)
+    version = check_generator_version(version)
     n_shapes = check_size(n_shapes, "n_shapes", MAX_SHAPES, "shapes")
     n_points = check_size(n_points, "n_points", MAX_SHAPE_POINTS)
     check_size(n_shapes * n_points, f"n_shapes x n_points ({n_shapes:,} x {n_points:,})", MAX_COLLECTION_POINTS)
     cache_file = None
     if use_cache:
         cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-        cache_file = cache_dir / f"{category}_S{n_shapes}_N{n_points}_seed{seed}_v{GENERATOR_VERSION}.npz"
+        cache_file = cache_dir / f"{category}_S{n_shapes}_N{n_points}_seed{seed}_v{version}.npz"
         if cache_file.is_file():
             try:
                 cached = ShapeCollection.load(cache_file)
-                if (cached.category, cached.points.shape, cached.seed) == (category, (n_shapes, n_points, 3), seed) \
+                if (cached.category, cached.points.shape, cached.seed, cached.generator_version) == \
+                        (category, (n_shapes, n_points, 3), seed, version) \
                         and cached.instances is not None:
                     return cached
             except ValueError:
@@ -884,11 +419,12 @@ def make_collection(
 
         indices = tqdm(indices, desc=f"{category} shapes")
     for i in indices:
-        _, structure, sid, p, nn, lab, inst, _, _ = _sample_shape(category, i, seed, n_points)
+        _, structure, sid, p, nn, lab, inst, _, _ = _sample_shape(category, i, seed, n_points, version)
         points[i], normals[i], labels[i], instances[i] = p, nn, lab, inst
         structures.append(structure)
         ids[i] = sid
-    coll = ShapeCollection(category, points, normals, labels, np.array(structures, dtype=str), ids, seed, instances)
+    coll = ShapeCollection(category, points, normals, labels, np.array(structures, dtype=str), ids, seed, instances,
+                           version)
     if cache_file is not None:
         coll.save(cache_file)
     return coll

@@ -82,7 +82,7 @@ from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.losses import compactness_loss
 from cuboidlib.model import CuboidAbstractionNet
 from cuboidlib.release import git_commit
-from cuboidlib.dataset import ShapeSet, load_splits, split_indices
+from cuboidlib.dataset import UNVERSIONED_GENERATOR, ShapeSet, load_splits, split_indices
 from cuboidlib.dataset import add_noise, noisy_splits
 from cuboidlib.train import FINETUNE_DIR, TrainConfig, Trainer
 from cuboidlib.train import course_config as train_course_config
@@ -305,7 +305,8 @@ def compactness_figures(category: str = "chair", n_shapes: int = 8, n_points: in
     printed (sum over cuboids) and in the averaged form (= Eq. (6) / M^2). Also ``M``.
     """
     m = COURSE_NUM_CUBOIDS[category]
-    shapes = load_splits(TrainConfig(category=category, n_shapes=max(n_shapes, 10), n_points=n_points))
+    shapes = load_splits(TrainConfig(category=category, n_shapes=max(n_shapes, 10), n_points=n_points,
+                                     generator_version=UNVERSIONED_GENERATOR))  # the committed results' shapes
     points = torch.cat([shapes[s].points for s in ("train", "val", "test")])[:n_shapes]
     normals = torch.cat([shapes[s].normals for s in ("train", "val", "test")])[:n_shapes]
     lo, hi = points.amin(dim=1), points.amax(dim=1)
@@ -522,8 +523,9 @@ def _fit_and_score(config: TrainConfig, options: dict) -> list[dict]:
 
 
 #: TrainConfig fields added after trainings were first shared; left out of :func:`training_key` while they keep
-#: their defaults, so that the trainings made before them keep their keys.
-KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps", "selection")
+#: their defaults (``generator_version``: 1, what a config without it means), so that the trainings made before
+#: them keep their keys.
+KEY_NEUTRAL_FIELDS = ("temperature_start", "temperature_steps", "selection", "generator_version")
 #: The same for fields of the model section.
 KEY_NEUTRAL_MODEL_FIELDS = ("input_normals",)
 
@@ -531,7 +533,7 @@ KEY_NEUTRAL_MODEL_FIELDS = ("input_normals",)
 def _without_neutral_defaults(config: dict) -> dict:
     """A config dict without the :data:`KEY_NEUTRAL_FIELDS` (and :data:`KEY_NEUTRAL_MODEL_FIELDS` of its
     model section) that are absent or at their defaults."""
-    defaults = TrainConfig().to_dict()
+    defaults = {**TrainConfig().to_dict(), "generator_version": UNVERSIONED_GENERATOR}  # a config without it: 1
     out = {k: v for k, v in config.items() if k not in KEY_NEUTRAL_FIELDS or v != defaults[k]}
     if isinstance(out.get("model"), dict):
         model_defaults = defaults["model"]
@@ -688,7 +690,8 @@ def finished_record(run: Run, run_dir: Path) -> dict | None:
     same = (record.get("status") == "ok" and record.get("name") == run.name and record.get("task") == run.task
             and _without_neutral_defaults(record.get("config") or {}) == _without_neutral_defaults(run.config.to_dict())
             and json.loads(json.dumps(run.options)) == record.get("options")
-            and (None if run.finetune is None else run.finetune.to_dict()) == record.get("finetune_config"))
+            and (None if run.finetune is None else _without_neutral_defaults(run.finetune.to_dict()))
+            == (None if record.get("finetune_config") is None else _without_neutral_defaults(record["finetune_config"])))
     return record if same else None
 
 

@@ -122,7 +122,8 @@ def analyse(name: str, n_refits: int, steps: int) -> dict:
     pure = torch.where(in_mixed, gt[scored], predicted)  # mixed slots named point by point by the truth
 
     distance, absent = [], 0  # of every misnamed point to the nearest point of the part it was named
-    structures = make_collection(config.category, config.n_shapes, config.n_points, seed=config.data_seed).structures
+    structures = make_collection(config.category, config.n_shapes, config.n_points, seed=config.data_seed,
+                                 version=config.generator_version).structures
     by_structure, shapes_of = Counter(), Counter()
     for row, j in enumerate(scored.tolist()):
         p, g, q = test.points[j], gt[j], predicted[row]

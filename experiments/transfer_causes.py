@@ -73,9 +73,16 @@ and writes ``experiments/results/transfer_causes.json`` after every category (th
 settings, every row's metrics, part IoUs and bootstrap, the statistics). The README's table is
 :func:`table` of that file.
 
+**Generator versions** (``--generator-stats``): the part statistics that the causes name, on the first
+``--shapes`` test shapes of the airplane and animal networks' split made by generator version 1 and by version 2
+(:mod:`cuboidlib.shapes`), beside the real meshes' values stored in ``results/transfer_causes.json``; it trains
+and scores nothing and writes ``results/transfer_causes_generator.json`` (:func:`generator_stats`,
+:func:`generator_table`).
+
 Example::
 
     python experiments/transfer_causes.py                          # 100 test shapes per category, about 22 minutes
+    python experiments/transfer_causes.py --generator-stats        # versions 1 and 2 against the real meshes
     python experiments/transfer_causes.py --shapes 20 --categories animal --only clean,tail_raised
 """
 
@@ -95,7 +102,7 @@ import numpy as np
 import torch
 
 from cuboidlib.applications import load_trained_model
-from cuboidlib.dataset import ShapeSet, split_indices
+from cuboidlib.dataset import UNVERSIONED_GENERATOR, ShapeSet, split_indices
 from cuboidlib.evaluation import _shape_generator, label_transfer_split, predict_cuboids, segmentation_scores
 from cuboidlib.files import write_text_atomic
 from cuboidlib.metrics import ChamferConvention, cuboid_chamfer_distance
@@ -812,7 +819,8 @@ def run_category(category: str, n_shapes: int, real_shapes, only) -> dict:
     cfg = state["config"]
     test = split_indices(cfg["n_shapes"], tuple(cfg["split_fractions"]), cfg["split_seed"])["test"]
     indices = [int(i) for i in test[:n_shapes]]
-    base = [make_shape(category, i, cfg["n_points"], cfg["data_seed"]) for i in indices]
+    version = cfg.get("generator_version", UNVERSIONED_GENERATOR)  # the network's own shapes
+    base = [make_shape(category, i, cfg["n_points"], cfg["data_seed"], version) for i in indices]
     print(f"== {category}: {path.name}, test shapes {len(indices)} of {len(test)}", flush=True)
     out = {"network": str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path),
            "test_indices": indices}
@@ -824,7 +832,7 @@ def run_category(category: str, n_shapes: int, real_shapes, only) -> dict:
         print(f"  interior points of the real meshes: {100 * share:.1f} % estimated (every-face sampling of the "
               f"procedural shapes: {100 * out['interior']['every_face_interior_share']:.1f} %)", flush=True)
     out["rows"] = run_changes(category, model, cfg, base, indices, only, share)
-    dense = [make_shape(category, i, 2048, cfg["data_seed"]) for i in indices]  # as many points as the real meshes
+    dense = [make_shape(category, i, 2048, cfg["data_seed"], version) for i in indices]  # as many points as the real meshes
     procedural = [part_stats(category, s.points.astype(np.float64), s.labels) for s in dense]
     out["procedural_layouts"] = _layouts(category, [(s.points, s.labels) for s in dense])
     if len(kept) >= 2:
@@ -917,6 +925,66 @@ def stats_table(doc: dict, categories=("airplane", "animal")) -> list[str]:
     return lines
 
 
+# ------------------------------------------------------------------------------------ generator versions
+
+#: The statistics that the causes name, per category (``--generator-stats``).
+GENERATOR_STATS = {
+    "airplane": ("fuselage_thickness_over_length", "height_over_length", "share_engine"),
+    "animal": ("leg_labels_up_the_body", "tail_angle_deg", "tail_length_over_body_length", "width_over_length",
+               "share_body", "share_leg"),
+}
+
+
+def generator_stats(doc: dict, n_shapes: int, versions=(1, 2)) -> dict:
+    """The :data:`GENERATOR_STATS` of the first ``n_shapes`` test shapes (the committed networks' split, 2048 points)
+    made by each generator version, against the real meshes' values in ``doc`` (``results/transfer_causes.json``).
+
+    Returns:
+        {category: {statistic: {"real": [values], "v<k>": [values]}, "layouts": {"real": {...}, "v<k>": {...}}}}.
+    """
+    test = split_indices(1000, (0.7, 0.1, 0.2), 0)["test"][:n_shapes]
+    out = {}
+    for category, keys in GENERATOR_STATS.items():
+        stored = doc["categories"][category]
+        rows = {key: {"real": list(stored["stats"][key]["real"].values())} for key in keys}
+        layouts = {"real": stored.get("real_layouts")}
+        for v in versions:
+            dense = [make_shape(category, int(i), 2048, 0, v) for i in test]
+            stats = [part_stats(category, s.points.astype(np.float64), s.labels) for s in dense]
+            for key in keys:
+                rows[key][f"v{v}"] = [d[key] for d in stats]
+            layouts[f"v{v}"] = _layouts(category, [(s.points, s.labels) for s in dense])
+        out[category] = {"stats": rows, "layouts": layouts}
+    return out
+
+
+def generator_table(found: dict) -> list[str]:
+    """Markdown lines: per statistic the real median, each version's 5 / 50 / 95th percentiles and how many real
+    shapes lie outside its 2.5-97.5 % range; then the airplanes' nose engines (light aircraft) per version."""
+    versions = [k for k in next(iter(found.values()))["layouts"] if k != "real"]
+    lines = ["| category | statistic | real median | " + " | ".join(f"{v} 5 / 50 / 95 % | real outside {v}"
+                                                                  for v in versions) + " |",
+             "| --- | --- | --- |" + " --- | --- |" * len(versions)]
+    for category, data in found.items():
+        for key, values in data["stats"].items():
+            real = np.array(values["real"], float)
+            cells = []
+            for v in versions:
+                a = np.array(values[v], float)
+                a = a[np.isfinite(a)]
+                lo, hi = np.percentile(a, [2.5, 97.5])
+                p = np.percentile(a, [5, 50, 95])
+                cells.append(f"{p[0]:.3g} / {p[1]:.3g} / {p[2]:.3g} | {int(((real < lo) | (real > hi)).sum())} of "
+                             f"{len(real)}")
+            lines.append(f"| {category} | {key} | {np.median(real):.3g} | " + " | ".join(cells) + " |")
+    air = found.get("airplane", {}).get("layouts")
+    if air:
+        share = lambda d: sum(n for k, n in d.items() if "nose" in k) / sum(d.values())  # noqa: E731
+        lines.append(f"| airplane | shapes with a nose engine | {share(air['real']):.2f} | "
+                     + " | ".join(f"{share(air[v]):.2f} | " for v in versions) + "|")
+    return lines
+
+
 # -------------------------------------------------------------------------------------------------- main
 
 
@@ -928,6 +996,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--real-root", action="append", default=[], metavar="NAME=DIR",
                         help="a source folder of the real meshes' manifest (default: the three under /work/realsrc)")
     parser.add_argument("--no-real", action="store_true", help="leave the real meshes out")
+    parser.add_argument("--generator-stats", action="store_true",
+                        help="only compare generator versions 1 and 2 with the real meshes' statistics stored in "
+                        "results/transfer_causes.json (no network is scored)")
     parser.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "transfer_causes.json")
     args = parser.parse_args(argv)
     categories = [c.strip() for c in args.categories.split(",") if c.strip()]
@@ -940,6 +1011,8 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"--only: unknown changes {sorted(unknown)}; choose from {[c.name for c in CHANGES]}")
     torch.set_num_threads(1)
+    if args.generator_stats:
+        return _generator_main(args, argv)
     start = time.time()
     roots = dict(DEFAULT_ROOTS)
     roots.update(dict(item.split("=", 1) for item in args.real_root))
@@ -966,6 +1039,23 @@ def main(argv: list[str] | None = None) -> int:
             print("\n".join(parts_table(doc, c)))
     print("\n".join([""] + stats_table(doc)))
     print(f"wrote {args.out} ({doc['wall_seconds'] / 60:.1f} min)")
+    return 0
+
+
+
+def _generator_main(args, argv) -> int:
+    """``--generator-stats``: print :func:`generator_table` and write ``results/transfer_causes_generator.json``."""
+    start = time.time()
+    found = generator_stats(json.loads(args.out.read_text()), args.shapes)
+    lines = generator_table(found)
+    print("\n".join(lines))
+    out = args.out.with_name("transfer_causes_generator.json")
+    doc = {"command": "python experiments/transfer_causes.py" + "".join(f" {a}" for a in (argv if argv is not None
+                                                                                            else sys.argv[1:])),
+           "git_commit": git_commit(ROOT), "shapes": args.shapes, "table": lines, "found": found,
+           "wall_seconds": round(time.time() - start, 1)}
+    write_text_atomic(out, json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {out}")
     return 0
 
 

@@ -496,6 +496,9 @@ def test_a_training_key_ignores_fields_added_later_while_they_keep_their_default
     assert runner.training_key(warm) != expected
     normals = runner.Run("c", {"seed": 0}, config.replace(model={"input_normals": "differences"}))
     assert runner.training_key(normals) != expected
+    assert config.generator_version == 1  # the recipe file has no generator_version: the committed runs' shapes
+    newer = runner.Run("d", {"seed": 0}, config.replace(generator_version=2))
+    assert runner.training_key(newer) != expected
 
 
 def test_a_record_written_before_fields_were_added_is_still_a_finished_run(tmp_path):

@@ -36,12 +36,15 @@ def angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
 
 
+# The frame search's constants were measured on generator version 1 (benchmarks/bench_rotation.py), the committed
+# networks' shapes: these tests read version 1.
+
 # A property over seeds: a random rotation of a test shape is found to within 10 degrees and reconstructed as
 # well as upright (the search's up error was below 2 degrees and its Chamfer ratio within 0.95-1.05 on these).
 @pytest.mark.parametrize("category, index, seed", [("chair", 4, 0), ("table", 17, 1), ("airplane", 23, 2),
                                                    ("animal", 41, 3)])
 def test_up_auto_finds_a_random_rotation_of_a_test_shape(category, index, seed):
-    s = make_shape(category, index, n_points=1024)
+    s = make_shape(category, index, n_points=1024, version=1)
     Q = random_rotation(seed)
     cloud = turned_cloud(s, Q, scale=250.0, shift=(10.0, -3.0, 40.0))
     upright = cuboidlib.abstract(np.concatenate([s.points * 250.0, s.normals], axis=1), model=category, up="y")
@@ -120,7 +123,7 @@ def test_up_auto_with_a_front_turns_the_shape_about_that_axis_only():
 
 def test_the_mirror_normal_of_a_turned_shape_is_its_side_axis():
     for category, index, seed in (("chair", 17, 4), ("airplane", 4, 5), ("animal", 18, 6)):
-        s = make_shape(category, index, n_points=1024)
+        s = make_shape(category, index, n_points=1024, version=1)
         Q = random_rotation(seed)
         mirror = mirror_normal(s.points @ Q.T, s.normals @ Q.T)
         side = Q @ [1.0, 0, 0]
@@ -136,11 +139,11 @@ def test_the_mirror_normal_of_a_turned_shape_is_its_side_axis():
 def test_the_ground_and_the_flat_area_give_the_up_of_an_upright_shape():
     side = np.array([1.0, 0.0, 0.0])
     for category, index in (("chair", 17), ("animal", 18), ("table", 4)):
-        s = make_shape(category, index, n_points=1024)
+        s = make_shape(category, index, n_points=1024, version=1)
         grounds = ground_ups(s.points, side)
         assert 2 <= len(grounds) <= 6
         assert min(angle(u, np.array([0.0, 1.0, 0.0])) for u in grounds) < 3, f"{category}: the feet's line is one"
-    plane = make_shape("airplane", 4, n_points=1024)
+    plane = make_shape("airplane", 4, n_points=1024, version=1)
     ups, dominance = flat_ups(plane.normals, side)
     assert dominance > 4.5 and len(ups) == 2 and min(angle(u, np.array([0.0, 1.0, 0.0])) for u in ups) < 3
 

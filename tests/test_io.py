@@ -262,7 +262,7 @@ def test_committed_data_samples_are_readable():
     for r in rows:
         pc = io.read_point_cloud(DATA_SAMPLES / r["points"])
         assert pc.points.shape == (2048, 3) and pc.normals is not None and pc.labels is not None
-        expected = make_shape(r["category"], int(r["collection_index"]), n_points=2048, seed=0)
+        expected = make_shape(r["category"], int(r["collection_index"]), n_points=2048, seed=0, version=1)
         np.testing.assert_array_equal(pc.labels, expected.labels)
         np.testing.assert_allclose(pc.points, expected.points, atol=1e-6)
         from_mesh = io.load_mesh_as_point_cloud(DATA_SAMPLES / r["mesh"], 300)
@@ -270,6 +270,7 @@ def test_committed_data_samples_are_readable():
         # (the concatenated mesh also has faces buried inside other parts, so not 100 %)
         assert (from_mesh.labels == pc.labels[nearest]).mean() > 0.75, "mesh face labels match the points"
     assert (DATA_SAMPLES / "samples.png").is_file() and (DATA_SAMPLES / "README.md").is_file()
+    assert (DATA_SAMPLES / "samples_v2.png").is_file()
 
 
 def test_samples_command(tmp_path, capsys):
@@ -280,6 +281,11 @@ def test_samples_command(tmp_path, capsys):
     assert io.read_point_cloud(tmp_path / "points" / "animal_0.ply").points.shape == (64, 3)
     assert main(["samples", "--out", str(tmp_path), "--points", "0"]) == 2
     assert "--per-category and --points must be positive" in capsys.readouterr().err
+    args = ["samples", "--out", str(tmp_path / "v2"), "--per-category", "2", "--points", "64", "--figure-only",
+            "--categories", "airplane,animal"]
+    assert main(args) == 0 and [p.name for p in (tmp_path / "v2").iterdir()] == ["samples_v2.png"]
+    assert main([*args[:-1], "sofa"]) == 2 and "--categories: expected some of" in capsys.readouterr().err
+    assert main([*args, "--no-figure"]) == 2 and "leave nothing to write" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------ files written from known arrays

@@ -79,6 +79,58 @@ def test_readme_lists_every_lesson():
         assert f"notebooks/{nb.name}" in readme, f"README.md does not list {nb.name}"
 
 
+def test_readme_lesson_times_are_the_committed_course_run():
+    """README's lesson table gives each lesson's run time as benchmarks/README.md records bench_course.py's run."""
+    readme = (ROOT / "README.md").read_text()
+    table = readme[readme.index("| lesson | what you learn | run time |"):]
+    rows = [line for line in table[:table.index("\n\n")].splitlines()[2:]]
+    assert len(rows) == len(NOTEBOOKS), "one row per lesson"
+    course = next(line for line in (ROOT / "benchmarks" / "README.md").read_text().splitlines()
+                  if line.startswith("| the whole course, every lesson top to bottom"))
+    for row in rows:
+        lesson, seconds = re.search(r"notebooks/(\d\w*?)_", row).group(1), row.rstrip(" |").rsplit("| ", 1)[1]
+        assert re.search(rf"\b{re.escape(seconds)}\b", course), f"lesson {lesson}: {seconds!r} is not in bench_course's row"
+
+
+def _heading_anchors(path: Path) -> set[str]:
+    """The anchors GitHub gives the headings of a Markdown file: lower case, punctuation dropped, spaces to '-'."""
+    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in re.findall(r"^#+ (.*)$", text, re.M)}
+
+
+def test_the_front_pages_link_only_to_what_exists():
+    """Every relative link of README.md and docs/*.md names a file of the repository, and an anchor of a Markdown
+    file names one of its headings."""
+    broken = []
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target):
+                continue
+            path, _, anchor = target.partition("#")
+            file = page.parent / path if path else page
+            if not file.exists() or (anchor and file.suffix == ".md" and anchor not in _heading_anchors(file)):
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+    assert not broken, broken
+
+
+def test_the_front_figure_is_drawn_by_its_script(tmp_path):
+    """docs/make_front_figure.py draws README's figure from a sample mesh and a committed network, and names the
+    sample meshes when asked for one that does not exist."""
+    import importlib.util
+
+    assert "(docs/front.png)" in (ROOT / "README.md").read_text() and (ROOT / "docs" / "front.png").is_file()
+    spec = importlib.util.spec_from_file_location("make_front_figure", ROOT / "docs" / "make_front_figure.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "front.png"
+    assert script.main(["--shapes", "table_0", "--out", str(out), "--dpi", "40"]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(SystemExit, match="chair_0"):
+        script.main(["--shapes", "sofa_0", "--out", str(tmp_path / "sofa.png")])
+    assert not (tmp_path / "sofa.png").exists()
+
+
 def _cells(nb_path: Path) -> list[dict]:
     return json.loads(nb_path.read_text())["cells"]
 
@@ -249,14 +301,29 @@ def test_paper_scale_config_is_the_chair_recipe_at_the_papers_scale(stage):
         assert large.init_from == "runs/chair_large/best.pt"
 
 
-def test_readme_15_minute_table_is_the_cards_of_its_runs():
-    from cuboidlib.release import cards_markdown
+def test_the_15_minute_page_shows_the_cards_of_its_networks():
+    """experiments/fifteen/README.md, "The runs": the recipe's four networks, each row read from its card in
+    experiments/fifteen/results/ (the command's minutes, the steps of both stages, mIoU, N_AC, the weakest part,
+    the Chamfer distance and its ratio to k-means boxes, the box distance)."""
+    from cuboidlib.release import read_card
 
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"<!-- networks-15min:start -->\n(.*?)\n<!-- networks-15min:end -->", text, re.S)
-    assert block, "README misses the 15-minute table markers"
-    results = ROOT / "experiments" / "fifteen" / "results"
-    assert block.group(1).strip() == cards_markdown([results / f"{c}_15min.pt" for c in CATEGORIES])
+    text = (ROOT / "experiments" / "fifteen" / "README.md").read_text()
+    section = text[text.index("**The recipe's networks, on a quiet machine**"):]
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in section[:section.index("\n\n", section.index("| category"))].splitlines() if line.startswith("| ")}
+    for category in CATEGORIES:
+        card = read_card(ROOT / "experiments" / "fifteen" / "results" / f"{category}_15min.pt")
+        network, baseline = card["test"]["results"]
+        cd = [1000 * r["chamfer"][0]["value"] for r in (network, baseline)]
+        weakest = min(network["part_iou"], key=network["part_iou"].get)
+        expected = [f"{card['command_seconds'] / 60:.1f}",
+                    f"{card['initialised_from']['training']['steps']} + {card['training']['steps']}",
+                    f"{100 * network['miou']:.1f}", f"{network['n_ac']:.1f}",
+                    f"{weakest} {100 * network['part_iou'][weakest]:.1f}", f"{cd[0]:.2f} ({cd[1] / cd[0]:.1f}x)",
+                    f"{network['box_distance']:.4f}"]
+        _, minutes, steps, miou, n_ac, part, chamfer, box = rows[category]
+        shown = [minutes, steps, miou.split(" (")[0], n_ac.split(" (")[0], part, chamfer, box]
+        assert shown == expected, (category, shown, expected)
 
 
 def test_readme_checkpoint_table_is_the_cards():
@@ -285,7 +352,7 @@ def _code_lines(node) -> int:
     return node.end_lineno - node.lineno + 1 - doc
 
 
-@pytest.mark.parametrize("folder", ["cuboidlib", "experiments", "benchmarks"])
+@pytest.mark.parametrize("folder", ["cuboidlib", "experiments", "benchmarks", "docs"])
 def test_functions_stay_short(folder):
     import ast
 

@@ -1,11 +1,50 @@
+import hashlib
+
 import numpy as np
 import pytest
 
 from cuboidlib import shapes
 from cuboidlib.shapes import CATEGORIES, PART_NAMES, STRUCTURES, ShapeCollection, make_collection, make_shape
-from cuboidlib.solids import union_sdf
+from cuboidlib.solids import Cylinder, union_sdf
 
 N_SHAPES = 6  # per category, for the per-point geometric checks
+
+#: The generator's shapes 0, 1, 2, 7 and 42 of seed 0, hashed by :func:`fingerprint`: the parts of ``build_parts``
+#: (rounded to 1e-6) and 256 points of ``make_shape`` (points rounded to 1e-5, normals to 1e-4, labels and
+#: instances exact). Computed before the generator was split by category and versioned, by
+#: ``python -c "from tests.test_shapes import fingerprint; print(fingerprint('chair', version=1))"`` (and so on per
+#: category) from the repository root (``version=1`` left out then); version 1 must keep them for ever.
+VERSION_1_FINGERPRINTS = {
+    "chair": "05e39f99213c60a2fbc10b37e4eda7a170562f598f66e9fc275c10efe91e9a50",
+    "table": "411f6b0be70f1fc9ce638e4fe9447725a0c54cd76f920ef5157fc9a77a253bde",
+    "airplane": "b5650c7613277b0fff71e03e70e656321352151146d735fc312e9fc90b7030d9",
+    "animal": "fc8710603f3d923b831d2095303d2c6b618b9cd127fb422508ed0bbd35658f9f",
+}
+FINGERPRINT_INDICES = (0, 1, 2, 7, 42)
+
+
+def _digest(h, a, decimals=None) -> None:
+    a = np.asarray(a)
+    if decimals is not None:  # rounded, so that another CPU's last bits do not change the hash
+        a = np.round(a.astype(np.float64), decimals) + 0.0  # + 0.0: -0.0 and 0.0 hash alike
+    h.update(np.ascontiguousarray(a).tobytes())
+
+
+def fingerprint(category: str, **version) -> str:
+    """sha256 of the parts and of 256 sampled points of shapes FINGERPRINT_INDICES (seed 0) of ``category``."""
+    h = hashlib.sha256()
+    for i in FINGERPRINT_INDICES:
+        solids, structure, sid = shapes.build_parts(category, i, 0, **version)
+        h.update(f"{structure}|{sid}".encode())
+        for p in solids:
+            h.update(f"{type(p).__name__}|{p.label}".encode())
+            for k, v in sorted(vars(p).items()):
+                if not k.startswith("_") and k != "label":
+                    _digest(h, np.asarray(v, np.float64), 6)
+        s = make_shape(category, i, 256, 0, **version)
+        for a, decimals in ((s.points, 5), (s.normals, 4), (s.labels, None), (s.instances, None)):
+            _digest(h, a, decimals)
+    return h.hexdigest()
 
 
 @pytest.fixture(scope="module")
@@ -18,6 +57,92 @@ def _own_part(shape, i_point):
     p = shape.points[i_point].astype(np.float64)[None]
     cands = [j for j, s in enumerate(shape.parts) if s.label == shape.labels[i_point]]
     return min(cands, key=lambda j: abs(shape.parts[j].sdf(p)[0]))
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_version_1_shapes_keep_their_fingerprint_and_version_2_changes_only_airplanes_and_animals(category):
+    assert fingerprint(category, version=1) == VERSION_1_FINGERPRINTS[category]
+    assert (fingerprint(category, version=2) == VERSION_1_FINGERPRINTS[category]) == (category in ("chair", "table"))
+    assert shapes.GENERATOR_VERSION == 2 and fingerprint(category) == fingerprint(category, version=2)
+
+
+def test_a_bad_generator_version_is_refused_with_the_versions_named():
+    for bad in (0, 3, True, 2.0, "2", None):
+        for call in (lambda: make_shape("chair", 0, 64, version=bad), lambda: shapes.build_parts("animal", 0, version=bad),
+                     lambda: make_collection("airplane", 2, 64, use_cache=False, version=bad)):
+            with pytest.raises(ValueError, match=r"generator version must be one of \(1, 2\)"):
+                call()
+
+
+N_DRAWS = 200  # version-2 shapes per category for the rates of the new variants
+
+
+def _rate_ok(count: int, n: int, rate: float) -> bool:
+    """``count`` of ``n`` draws is within 4 binomial standard deviations of ``rate``."""
+    return abs(count - n * rate) <= 4 * (n * rate * (1 - rate)) ** 0.5
+
+
+def test_version_2_airplanes_draw_light_aircraft_and_landing_gear_at_their_rates():
+    from cuboidlib.shapes_airplane import GEAR_SHARE, LIGHT_AIRCRAFT_SHARE
+
+    drawn = [shapes.build_parts("airplane", i, 0, version=2) for i in range(N_DRAWS)]
+    light = [(solids, st) for solids, st, sid in drawn if STRUCTURES["airplane"][sid] == "propeller"]
+    others = [st for solids, st, sid in drawn if STRUCTURES["airplane"][sid] != "propeller"]
+    assert _rate_ok(len(light), N_DRAWS, LIGHT_AIRCRAFT_SHARE)
+    assert _rate_ok(sum("+gear" in st for st in others), len(others), GEAR_SHARE)
+    for solids, st, _ in drawn:  # a gear's wheels: discs across x (axis along x), labelled body
+        wheels = [s for s in solids if isinstance(s, Cylinder) and s.label == 0 and abs(s.R[0, 2]) > 0.99]
+        assert len(wheels) == (3 if "+gear" in st else 0)
+    assert sum("+gear" in st for _, st in light) > 0.6 * len(light)
+    for i in [i for i, (_, _, sid) in enumerate(drawn) if STRUCTURES["airplane"][sid] == "propeller"][:8]:
+        s = make_shape("airplane", i, 1024, 0, version=2)
+        engine, body = s.points[s.labels == 3], s.points[s.labels == 0]
+        assert len(engine) and engine[:, 2].min() > np.percentile(body[:, 2], 90), "the only engine is on the nose"
+
+
+def _tail_angle(solids) -> float:
+    tail = [s for s in solids if s.label == 3]
+    v = tail[-1].b - tail[0].a
+    return float(np.degrees(np.arctan2(v[1], -v[2])))
+
+
+def test_version_2_animals_draw_posed_tails_wider_bodies_and_thighs_at_their_rates():
+    from cuboidlib.shapes_animal import TAIL_POSES, WIDE_SHARE
+
+    drawn = [shapes.build_parts("animal", i, 0, version=2) for i in range(N_DRAWS)]
+    structures = [st for _, st, _ in drawn]
+    for pose, weight, (lo, hi) in TAIL_POSES:
+        posed = [solids for solids, st, _ in drawn if f"+{pose}-tail" in st]
+        assert _rate_ok(len(posed), N_DRAWS, weight)
+        angles = [_tail_angle(solids) for solids in posed]  # between 0.75 and 1.2 times the drawn angle
+        assert max(min(1.2 * lo, 0.75 * lo), -88) - 1e-6 <= min(angles) and max(angles) <= max(1.2 * hi, 0.75 * hi)
+    angles = [_tail_angle(solids) for solids, _, _ in drawn]
+    assert min(angles) < -75 and max(angles) > 65, "tails from hanging to raised"
+    assert _rate_ok(sum("+wide" in st for st in structures), N_DRAWS, WIDE_SHARE)
+    ends = [[s for s in solids if s.label == 3] for solids, _, _ in drawn]
+    length = np.array([np.linalg.norm(tail[-1].b - tail[0].a) for tail in ends])  # body length 1 before scaling
+    v1_short = [np.linalg.norm(tail[-1].b - tail[0].a) < 0.16 for tail in
+                ([s for s in shapes.build_parts("animal", i, 0, version=1)[0] if s.label == 3] for i in range(N_DRAWS))]
+    assert length.max() <= 0.7 + 1e-9 and np.mean(length < 0.16) < 0.1 < np.mean(v1_short), "no stubs of tails"
+
+
+def test_version_2_leg_labels_reach_up_the_body_as_on_the_real_meshes():
+    for i in range(12):
+        for version, lo, hi in ((1, 0.2, 0.42), (2, 0.42, 0.8)):
+            s = make_shape("animal", i, 2048, 0, version=version)
+            body_y, leg_y = s.points[s.labels == 0, 1], s.points[s.labels == 2, 1]
+            up = (np.percentile(leg_y, 99) - body_y.min()) / np.ptp(body_y)  # transfer_causes' statistic
+            assert lo < up < hi, (version, i, up)
+
+
+def test_collections_of_two_versions_are_cached_apart(tmp_path):
+    one = make_collection("animal", 2, 64, seed=0, cache_dir=tmp_path, version=1)
+    two = make_collection("animal", 2, 64, seed=0, cache_dir=tmp_path, version=2)
+    assert sorted(p.name for p in tmp_path.glob("*.npz")) == ["animal_S2_N64_seed0_v1.npz", "animal_S2_N64_seed0_v2.npz"]
+    assert (one.generator_version, two.generator_version) == (1, 2) and not np.array_equal(one.points, two.points)
+    again = ShapeCollection.load(tmp_path / "animal_S2_N64_seed0_v1.npz")
+    assert again.generator_version == 1
+    np.testing.assert_array_equal(again.points, one.points)
 
 
 def test_part_names_and_structures_follow_the_paper_categories():
@@ -90,7 +215,8 @@ def test_structure_strings_match_the_parts_present(category):
             assert present == {"top", "leg"} and st.startswith(coarse)
         elif category == "airplane":
             assert ("engine" in present) == (not coarse.startswith("engines0"))
-            assert ("+t-tail" in st) == coarse.endswith("+t-tail")
+            assert ("+t-tail" in st) == coarse.endswith("+t-tail") or coarse == "propeller"  # light aircraft: either
+            assert st.startswith("propeller") == (coarse == "propeller")
             assert {"body", "wing", "tail"} <= present
         else:
             assert present == set(PART_NAMES["animal"]) and st.split("+")[0] == coarse
@@ -104,7 +230,8 @@ def test_shapes_are_upright_and_face_plus_z(samples):
     for s in samples["table"]:
         assert s.points[s.labels == 0, 1].min() > s.points[s.labels == 1, 1].mean()
     for s in samples["airplane"]:
-        assert s.labels[np.argmax(s.points[:, 2])] == 0, "the nose (body) is the front-most point"
+        nose = 3 if s.structure.startswith("propeller") else 0
+        assert s.labels[np.argmax(s.points[:, 2])] == nose, "the nose (body, or a propeller) is the front-most point"
         assert s.points[s.labels == 2, 2].mean() < s.points[s.labels == 1, 2].mean(), "tail behind the wings"
         assert np.ptp(s.points[s.labels == 1, 0]) > np.ptp(s.points[s.labels == 1, 2]), "wings span x"
     for s in samples["animal"]:

@@ -20,6 +20,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__", "files"),                                    # version, reading and writing files
     ("_checks", "config", "kernels", "file_tables"),          # plumbing: checks, configs, C++, text and PLY tables
     ("neighbors", "geometry", "normalization", "solids", "mesh_files"),  # kNN, cuboids, the unit frame, solids, meshes
+    ("shapes_common",),                                       # what the procedural categories build with
+    ("shapes_chair", "shapes_table", "shapes_airplane", "shapes_animal"),  # one procedural category each
     ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast", "frames"),  # Eq. (5), scores, shapes, frames
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets

@@ -39,6 +39,9 @@ def tc():
     sys.modules.pop(spec.name, None)
 
 
+# The script perturbs the committed networks' test shapes: generator version 1 (the version their configs mean).
+
+
 def _change(tc, name):
     return next(c for c in tc.CHANGES if c.name == name)
 
@@ -48,7 +51,7 @@ def _own_distance(solids, points, index):
 
 
 def test_every_face_samples_the_faces_inside_the_union_too(tc):
-    shape = make_shape("airplane", 3, 512, 0)  # wing roots and the fin's root lie inside the fuselage
+    shape = make_shape("airplane", 3, 512, 0, version=1)  # wing roots and the fin's root lie inside the fuselage
     rng = np.random.default_rng(0)
     p, nn, idx = tc.sample_every_face(shape.parts, 2000, rng)
     assert p.shape == (2000, 3) and np.allclose(np.linalg.norm(nn, axis=1), 1, atol=1e-6)
@@ -63,7 +66,7 @@ def test_every_face_samples_the_faces_inside_the_union_too(tc):
 @pytest.mark.parametrize("name", ["resampled", "density_ramp4", "density_triangles", "nose_propeller",
                                   "wing_span1.3", "tail_x1.4"])
 def test_resampling_changes_keep_to_the_outer_surface(tc, name):
-    shape = make_shape("airplane", 5, 256, 0)
+    shape = make_shape("airplane", 5, 256, 0, version=1)
     out = _change(tc, name).apply(shape, np.random.default_rng(1))
     assert out.points.shape == (256, 3) and out.labels.shape == (256,) and out.instances.shape == (256,)
     if name in ("resampled", "density_ramp4", "density_triangles"):
@@ -112,7 +115,7 @@ def test_tilt_turns_by_the_angle_either_way(tc):
 
 
 def test_thigh_labels_move_body_points_over_the_hips_to_the_legs(tc):
-    shape = make_shape("animal", 2, 1024, 0)
+    shape = make_shape("animal", 2, 1024, 0, version=1)
     out = tc._thigh_labels(shape, np.random.default_rng(0))
     changed = out.labels != shape.labels
     assert changed.any() and (shape.labels[changed] == 0).all() and (out.labels[changed] == 2).all()
@@ -124,7 +127,7 @@ def test_thigh_labels_move_body_points_over_the_hips_to_the_legs(tc):
 @pytest.mark.parametrize("angle", [60, -75, None])
 def test_turned_tail_points_at_its_angle_and_is_long_enough(tc, angle):
     for index in range(6):
-        shape = make_shape("animal", index, 256, 0)
+        shape = make_shape("animal", index, 256, 0, version=1)
         before = [s for s in shape.parts if s.label == 3]
         parts = tc.turned_tail(shape.parts, angle, ground=-10.0)  # no ground in the way
         tails = [s for s in parts if s.label == 3]
@@ -142,7 +145,7 @@ def test_turned_tail_points_at_its_angle_and_is_long_enough(tc, angle):
 
 def test_tail_hanging_is_seen(tc):
     for index in range(6):
-        shape = make_shape("animal", index, 2048, 0)
+        shape = make_shape("animal", index, 2048, 0, version=1)
         out = _change(tc, "tail_hanging").apply(shape, np.random.default_rng(0))
         tail = out.points[out.labels == 3]
         root = next(s for s in shape.parts if s.label == 3).a
@@ -150,7 +153,7 @@ def test_tail_hanging_is_seen(tc):
 
 
 def test_nose_propeller_replaces_the_engines_at_the_nose(tc):
-    shape = make_shape("airplane", 4, 1024, 0)  # this one has engines under its wings
+    shape = make_shape("airplane", 4, 1024, 0, version=1)  # this one has engines under its wings
     assert (shape.labels == 3).sum() > 20
     out = tc._nose_propeller(shape, np.random.default_rng(0))
     engine = out.points[out.labels == 3]
@@ -162,7 +165,7 @@ def test_engine_layout_reads_the_procedural_structures(tc):
     expected = {"engines0": "none", "engines2": "wing2", "engines4": "wing4", "engines2-rear": "rear2"}
     agree = total = 0
     for index in range(24):
-        shape = make_shape("airplane", index, 1024, 0)
+        shape = make_shape("airplane", index, 1024, 0, version=1)
         kind = shape.structure.split("+")[0]
         total += 1
         agree += tc.engine_layout(shape.points, shape.labels) == expected[kind]
@@ -199,8 +202,33 @@ def test_readme_shows_the_tables_of_the_results(tc):
         assert block.group(1).strip() == "\n".join(lines), name
 
 
+def test_readme_shows_the_generator_versions_table_and_version_2_moves_towards_the_real_meshes(tc):
+    doc = json.loads((ROOT / "experiments" / "results" / "transfer_causes_generator.json").read_text())
+    readme = (ROOT / "experiments" / "README.md").read_text()
+    block = re.search(r"<!-- generator:start -->\n(.*?)\n<!-- generator:end -->", readme, re.S)
+    assert block is not None and block.group(1).strip() == "\n".join(doc["table"])
+    assert tc.generator_table(doc["found"]) == doc["table"]
+    stats = doc["found"]["animal"]["stats"]
+    median = {k: {v: np.nanmedian(stats[k][v]) for v in ("real", "v1", "v2")} for k in stats}
+    for key in ("leg_labels_up_the_body", "tail_angle_deg", "tail_length_over_body_length", "share_body"):
+        assert abs(median[key]["v2"] - median[key]["real"]) < abs(median[key]["v1"] - median[key]["real"]), key
+    layouts = doc["found"]["airplane"]["layouts"]
+    assert "nose1" not in layouts["v1"] and 0.15 < layouts["v2"]["nose1"] / sum(layouts["v2"].values()) < 0.35
+
+
+def test_generator_stats_reads_both_versions(tc):
+    doc = json.loads((ROOT / "experiments" / "results" / "transfer_causes.json").read_text())
+    found = tc.generator_stats(doc, 5)
+    assert set(found) == {"airplane", "animal"}
+    for category, data in found.items():
+        for values in data["stats"].values():
+            assert len(values["v1"]) == len(values["v2"]) == 5 and len(values["real"]) >= 2
+    lines = tc.generator_table(found)
+    assert len(lines) == 2 + sum(len(d["stats"]) for d in found.values()) + 1
+
+
 def test_buried_finds_the_points_inside_other_solids_and_the_share_is_thinned(tc):
-    shape = make_shape("airplane", 3, 512, 0)
+    shape = make_shape("airplane", 3, 512, 0, version=1)
     rng = np.random.default_rng(0)
     p, _, idx = tc.sample_every_face(shape.parts, 3000, rng)
     inside = tc.buried(shape.parts, p, idx)
@@ -213,7 +241,7 @@ def test_buried_finds_the_points_inside_other_solids_and_the_share_is_thinned(tc
 
 
 def test_enclosed_share_tells_interior_points_from_outer_ones(tc):
-    shape = make_shape("airplane", 3, 2048, 0)
+    shape = make_shape("airplane", 3, 2048, 0, version=1)
     rng = np.random.default_rng(0)
     p, _, idx = tc.sample_every_face(shape.parts, 2048, rng)
     inside = tc.buried(shape.parts, p, idx)
@@ -223,7 +251,7 @@ def test_enclosed_share_tells_interior_points_from_outer_ones(tc):
 
 
 def test_landing_gear_adds_wheels_below_the_fuselage(tc):
-    shape = make_shape("airplane", 1, 1024, 0)  # no engines
+    shape = make_shape("airplane", 1, 1024, 0, version=1)  # no engines
     out = tc._landing_gear(shape, np.random.default_rng(0))
     axis, _, rf = tc._fuselage(shape)
     below = out.points[:, 1] < axis[1] - 1.3 * rf
@@ -232,7 +260,7 @@ def test_landing_gear_adds_wheels_below_the_fuselage(tc):
 
 def test_thicker_fuselage_keeps_its_length(tc):
     for index in range(4):  # capsule and cylinder fuselages
-        shape = make_shape("airplane", index, 2048, 0)
+        shape = make_shape("airplane", index, 2048, 0, version=1)
         out = tc._fuselage_scaled(1.4)(shape, np.random.default_rng(0))
         before, after = shape.points[shape.labels == 0], out.points[out.labels == 0]
         assert np.ptp(after[:, 2]) == pytest.approx(np.ptp(before[:, 2]), rel=0.03)

@@ -44,7 +44,8 @@ def tail_recall(checkpoint: Path) -> dict:
     names = scores["label_transfer"]["confusion"]["parts"]
     cuboid_part = torch.tensor(scores["label_transfer"]["cuboid_labels"])
     _, scored = label_transfer_split(len(test))
-    collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed)
+    collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
+                                 version=config.generator_version)
     short = torch.tensor(["short-tail" in str(collection.structures[i]) for i in test.indices[scored].tolist()])
     tail = names.index("tail")
     named = cuboid_part[pred.labels[scored]]  # (S, N) the part each point is named

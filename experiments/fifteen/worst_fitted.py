@@ -42,7 +42,8 @@ def worst_fitted(checkpoint: Path, ks: list[int]) -> list[dict]:
         raise SystemExit(f"{checkpoint}: an animal network expected, got a {config.category} network")
     test = load_splits(config)["test"]
     _, scored = label_transfer_split(len(test))  # the animals the cards score
-    collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed)
+    collection = make_collection(config.category, config.n_shapes, config.n_points, config.data_seed,
+                                 version=config.generator_version)
     short = torch.tensor(["short-tail" in str(collection.structures[i]) for i in test.indices[scored].tolist()])
     chosen = scored[short]
     pred, _ = predict_cuboids(model, test, centers_from_allocation=config.loss_config.centers_from_allocation)
