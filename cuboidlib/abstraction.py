@@ -400,8 +400,8 @@ def _network_check(result: Abstraction, path, device: str) -> NetworkVerdict | N
         return None
     given, threshold = _given_name(path)
     others = {name: v for name, v in committed_networks(resolve_device(device)).items() if name != given}
-    distances = {given: float(latent), **{name: float(d[0]) for name, d in
-                                          latent_distances(result.points[None], result.normals[None], others).items()}}
+    others_d = latent_distances(result.points[None], result.normals[None], others)  # rounded as the given one is
+    distances = {given: float(latent), **{name: round(float(d[0]), 2) for name, d in others_d.items()}}
     thresholds = {given: threshold, **{name: LATENT_THRESHOLDS.get(name, DEFAULT_THRESHOLD) for name in others}}
     verdict = network_verdict(distances, thresholds, given)
     result.method["network_check"] = verdict.to_dict()

@@ -353,6 +353,23 @@ def test_a_shape_no_network_knows_warns_naming_the_fit_and_fallback_fits_it():
     assert fitted.chamfer < result.chamfer
 
 
+def test_a_checkpoint_outside_the_committed_ones_is_checked_with_the_default_threshold(tmp_path):
+    import shutil
+
+    from cuboidlib.applications import committed_checkpoints
+    from cuboidlib.network_check import DEFAULT_THRESHOLD, LATENT_THRESHOLDS
+
+    mine = shutil.copy(committed_checkpoints()["chair"], tmp_path / "mine.pt")  # the chair network, by another name
+    s = make_shape("chair", 2, n_points=1024)
+    result = cuboidlib.abstract(np.concatenate([s.points, s.normals], axis=1), model=mine, up="y", check=True)
+    check = result.method["network_check"]
+    assert check["given"] == "mine.pt" and check["threshold"]["mine.pt"] == DEFAULT_THRESHOLD
+    assert set(check["latent_distance"]) == {"mine.pt", *committed_checkpoints()}
+    assert check["latent_distance"]["mine.pt"] == pytest.approx(check["latent_distance"]["chair"], abs=0.01)
+    assert (DEFAULT_THRESHOLD == LATENT_THRESHOLDS["chair"]) == (not check["speaks"]), \
+        "the same network: silent unless its own threshold is below the committed one's"
+
+
 def test_a_loaded_network_without_its_checkpoint_is_recorded_as_unchecked():
     import warnings
 
