@@ -78,30 +78,37 @@ def kmeans_chamfer(points: np.ndarray, normals: np.ndarray, boxes: int, seeds: i
     return min(chamfer(target, fit_cluster_boxes(p, n, boxes, seed=s).cuboids) for s in range(seeds))
 
 
-def run_shape(shape, net, net_points: int, args) -> tuple[dict, dict]:
+def network_cloud(shape) -> np.ndarray:
+    """(N, 6) points and normals of a real shape in the networks' frame (+y up, facing +z), in its own units.
+
+    The files' face normals follow their winding, which real meshes rarely keep consistent: they are oriented
+    outward as :func:`cuboidlib.io.load_mesh_as_point_cloud` orients those of a mesh that is not watertight."""
+    points = (shape.points @ shape.to_network.T).astype(np.float32)
+    normals = orient_normals(points, (shape.normals @ shape.to_network.T).astype(np.float32))
+    return np.concatenate([points, normals], axis=1)
+
+
+def run_shape(shape, net_points: int, args) -> tuple[dict, dict]:
     """One shape: every method's record, and the network's result for the picture.
 
     The network (and its refinement and the k-means boxes) sees the first ``net_points`` points, as many as it
     was trained with; the fit sees all of them; every Chamfer distance is measured against all of them."""
-    points = (shape.points @ shape.to_network.T).astype(np.float32)
-    # the files' face normals follow their winding, which real meshes rarely keep consistent: oriented outward
-    # as cuboidlib.io.load_mesh_as_point_cloud orients those of a mesh that is not watertight
-    normals = orient_normals(points, (shape.normals @ shape.to_network.T).astype(np.float32))
-    cloud = np.concatenate([points, normals], axis=1)
+    cloud = network_cloud(shape)
+    points, normals = cloud[:, :3], cloud[:, 3:]
     seen = cloud[:net_points]  # the samples are independent: the first ones are a uniform subsample
     row = {"name": shape.name, "category": shape.category, "points": len(points), "network_points": len(seen)}
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        out = abstract(seen, net, seed=0, up="y", check=True)
+        out = abstract(seen, shape.category, seed=0, up="y", check=True)  # by name: with its latent statistics
     row["net"] = {"chamfer": chamfer(points, out.cuboids_in()), "cuboids": out.num_existing,
                   "seconds": round(time.perf_counter() - start, 2),
                   "warned": any(issubclass(w.category, NetworkFitWarning) for w in caught),
-                  "check": out.method.get("reference_check")}
+                  "check": out.method.get("network_check")}
     pictures = {"net": out}
     if args.refine:
         start = time.perf_counter()
-        ref = abstract(seen, net, seed=0, up="y", refine=args.refine)
+        ref = abstract(seen, shape.category, seed=0, up="y", refine=args.refine)
         row["refined"] = {"chamfer": chamfer(points, ref.cuboids_in()), "seconds": round(time.perf_counter() - start, 2)}
         pictures["refined"] = ref
     if not args.no_fit:
@@ -233,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
         net_points = int(state["config"]["n_points"])
         done, parts = [], {"net": ([], []), "refined": ([], [])}
         for shape in group:
-            row, pictures = run_shape(shape, net, net_points, args)
+            row, pictures = run_shape(shape, net_points, args)
             done.append(row)
             for key in parts:
                 if "truth" in pictures and key in pictures["segments"]:

@@ -8,7 +8,7 @@ of ``data_samples/meshes/`` (2048 points sampled by :func:`cuboidlib.abstract`, 
   best of ``--seeds`` seeds (independent of any start the fit takes from k-means);
 * ``fit``: ``abstract(shape, None)`` (the default :class:`~cuboidlib.fitting.FitConfig`);
 * ``net``: ``abstract(shape, model, up="y", check=True)``, the network of the mesh's category, or for the thin
-  shapes the one named in :data:`THIN_NETWORK`; its check's ratio to k-means (``method["reference_check"]``);
+  shapes the one named in :data:`THIN_NETWORK`; the shape's latent distance under it (``method["latent_distance"]``);
 * ``refined``: the same with ``refine=--refine`` steps.
 
 Chamfer distances x1000 in the course's convention (:class:`~cuboidlib.metrics.ChamferConvention`, squared
@@ -32,7 +32,6 @@ import numpy as np
 import torch
 
 from cuboidlib.abstraction import abstract
-from cuboidlib.applications import load_trained_model
 from cuboidlib.baseline import fit_cluster_boxes
 from cuboidlib.metrics import ChamferConvention, cuboid_chamfer_distance
 from cuboidlib.thin_shapes import thin_structure_set
@@ -74,16 +73,12 @@ def main() -> None:
         shapes[name] = (np.concatenate([p, n], axis=1), THIN_NETWORK[name.split("_")[0]])
     for path in sorted((ROOT / "data_samples" / "meshes").glob("*.ply")):
         shapes[path.stem] = (str(path), path.stem.rsplit("_", 1)[0])
-    nets = {}
     rows = []
     print(f"{'shape':12s} {'network':8s} | {'kmeans':>7s} {'fit':>7s} {'n':>3s} {'s':>5s} | {'net':>7s} {'n':>3s} "
-          f"{'vs km':>6s} {'s':>5s} | {'refined':>7s} {'s':>5s} | k-means same count as the network")
+          f"{'latent':>6s} {'s':>5s} | {'refined':>7s} {'s':>5s} | k-means same count as the network")
     for name, (shape, model) in shapes.items():
         if args.only and name not in args.only:
             continue
-        if model not in nets:
-            nets[model] = load_trained_model(model, "cpu")[0]
-        net = nets[model]
         fit, fit_s = _timed(lambda: abstract(shape, None, n_points=2048, seed=0))
         km = kmeans_chamfer(fit.points, fit.normals, fit.num_existing, args.seeds)
         if args.fit_only:
@@ -91,13 +86,13 @@ def main() -> None:
             print(f"{name:12s} {'-':8s} | {km * 1e3:7.3f} {fit.chamfer * 1e3:7.3f} {fit.num_existing:3d} {fit_s:5.1f} |",
                   flush=True)
             continue
-        out, net_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y", check=True))
-        ref, ref_s = _timed(lambda: abstract(shape, net, n_points=2048, seed=0, up="y", refine=args.refine))
+        out, net_s = _timed(lambda: abstract(shape, model, n_points=2048, seed=0, up="y", check=True))
+        ref, ref_s = _timed(lambda: abstract(shape, model, n_points=2048, seed=0, up="y", refine=args.refine))
         km_net = kmeans_chamfer(out.points, out.normals, out.num_existing, args.seeds)
-        ratio = out.method["reference_check"]["ratio"]
+        latent = out.method["latent_distance"]  # the checkpoint's statistics: the network is given by name
         rows.append((name, km, fit.chamfer, out.chamfer, ref.chamfer, km_net))
         print(f"{name:12s} {model:8s} | {km * 1e3:7.3f} {fit.chamfer * 1e3:7.3f} {fit.num_existing:3d} {fit_s:5.1f} | "
-              f"{out.chamfer * 1e3:7.3f} {out.num_existing:3d} {ratio:6.2f} {net_s:5.1f} | {ref.chamfer * 1e3:7.3f} "
+              f"{out.chamfer * 1e3:7.3f} {out.num_existing:3d} {latent:6.2f} {net_s:5.1f} | {ref.chamfer * 1e3:7.3f} "
               f"{ref_s:5.1f} | {km_net * 1e3:7.3f}", flush=True)
     thin = [r for r in rows if not (ROOT / "data_samples" / "meshes" / f"{r[0]}.ply").exists()]
     for label, group in (("thin-structure set", thin), ("all shapes", rows)):

@@ -24,8 +24,8 @@ import numpy as np
 import torch
 
 from ._checks import MAX_FIT_STEPS, MAX_SHAPE_POINTS, as_float_tensor, check_coordinates, check_seed, check_size
-from .applications import abstract_shapes, check_latent_statistics, latent_distance, load_trained_model
-from .baseline import fit_cluster_boxes
+from .applications import (abstract_shapes, check_latent_statistics, committed_checkpoints, latent_distance,
+                           load_trained_model)
 from .config import resolve_device, torch_threads
 from .fitting import FitConfig, fit_cuboids, tighten_cuboids
 from .frames import (AXES, YAWS, candidate_frames, choose_frame, frame_rotation, frame_score, is_axis_frame,
@@ -35,12 +35,14 @@ from .io import PointCloud, load_point_cloud, validate_point_cloud
 from .merging import merge_split_cuboids
 from .metrics import ChamferConvention, cuboid_chamfer_distance, transfer_part_labels
 from .model import CuboidAbstractionNet
+from .network_check import (DEFAULT_THRESHOLD, LATENT_THRESHOLDS, NetworkVerdict, committed_networks,
+                            latent_distances, network_verdict, verdict_advice, verdict_reasons)
 from .normalization import normalize
 from .normals import estimate_normals
 from .results import Abstraction, AbstractionBatch, result_files
 
 __all__ = ["abstract", "frame_rotation", "candidate_frames", "up_axis_scores", "AXES", "REFINE_LR", "OrientationWarning",
-           "ORIENTATION_RATIO", "UPSIDE_DOWN_MARGIN", "FRAME_SCORE", "NetworkFitWarning", "REFERENCE_RATIO", "LATENT_DISTANCE", "reference_check_reasons", "Abstraction", "AbstractionBatch", "result_files"]
+           "ORIENTATION_RATIO", "UPSIDE_DOWN_MARGIN", "FRAME_SCORE", "NetworkFitWarning", "Abstraction", "AbstractionBatch", "result_files"]
 
 #: Learning rate of the cuboid parameters when a network's result is refined (``abstract(refine=...)``):
 #: the fit's default 0.01 first moves the network's cuboids away from a good start; 0.003 does not.
@@ -62,23 +64,6 @@ FIT_TIGHTEN_POINTS = 1024
 #: Chamfer distance below this fraction of the +y-up one (measured by ``experiments/orientation_check.py``).
 ORIENTATION_RATIO = 0.5
 
-#: ``abstract(shape, model)`` compares the network's Chamfer distance with that of k-means boxes
-#: (:func:`cuboidlib.baseline.fit_cluster_boxes`, as many boxes as the network's cuboids, on the same points
-#: and surface samples) and warns (:class:`NetworkFitWarning`) above this ratio. Measured by
-#: ``python benchmarks/bench_reference_check.py --per-split 100 --cross 6``: on the first 100 shapes of each test
-#: split with its own network the ratio is at most 0.41; it speaks alone on 57 of those 87 shapes.
-REFERENCE_RATIO = 2.0
-
-#: ... and warns too when the shape's latent code lies farther than this from the codes of the network's
-#: training shapes (:func:`cuboidlib.applications.latent_distance`, a Mahalanobis distance; about sqrt(64) = 8
-#: for a shape like them), at the network's training density (the default ``n_points``). Measured by
-#: ``python benchmarks/bench_reference_check.py --per-split 100 --cross 6``: each network's first 100 test shapes
-#: lie below it (at most 10.6); the thin-structure set and the other categories' shapes lie above it (the
-#: insects at 32-37), all but 3 of 88 (10.6-11.7, two of them caught by the ratio). k-means boxes are as poor as the animal network on the insects, so the ratio alone
-#: does not see them: with both, the check is silent on all 400 test shapes and speaks on all 16 thin shapes and
-#: on 86 of the 87 shapes where the network is at least 1.5x worse than the per-shape fit.
-LATENT_DISTANCE = 12.0
-
 #: How the candidate frames of the orientation check and of ``up="auto"`` are scored: the Chamfer
 #: distance with 512 surface samples against at most FRAME_SCORE_POINTS of the input's points, evenly
 #: spaced (cheaper than the result's own Chamfer distance, which keeps 4096 samples and every point).
@@ -93,8 +78,9 @@ UPSIDE_DOWN_MARGIN = 0.05
 
 
 class NetworkFitWarning(UserWarning):
-    """``abstract(shape, model)``: the network's cuboids reconstruct the shape much worse than k-means boxes
-    with as many boxes (the network does not fit this shape; ``model=None`` fits it without a network)."""
+    """``abstract(shape, model, check=True)``: the network does not know this shape (its latent code lies nearer
+    another network's training shapes, or far from every network's); the message names the route to take
+    instead (:mod:`cuboidlib.network_check`)."""
 
 
 class OrientationWarning(UserWarning):
@@ -387,57 +373,51 @@ def _orientation_warning(result: Abstraction, scores: dict[str, float]) -> None:
             f"pass up={suggested!r} (--up {suggested}) or up='auto', or up='y' if it is upright"), stacklevel=4)  # the caller of abstract()
 
 
-def _reference_check(result: Abstraction, seed: int) -> bool:
-    """Compare the network's result with k-means boxes of as many boxes, and the shape's latent code with the
-    network's training shapes; record both in ``method["reference_check"]``.
+def _given_name(path) -> tuple[str, float]:
+    """The given network's name in the check and its threshold: a committed network's name and calibrated
+    threshold (:data:`cuboidlib.network_check.LATENT_THRESHOLDS`), else its file name and the default one."""
+    resolved = Path(path).resolve()
+    for name, committed in committed_checkpoints().items():
+        if committed.resolve() == resolved:
+            return name, LATENT_THRESHOLDS.get(name, DEFAULT_THRESHOLD)
+    return resolved.name, DEFAULT_THRESHOLD
+
+
+def _network_check(result: Abstraction, path, device: str) -> NetworkVerdict | None:
+    """Whether the network knows the shape (:func:`cuboidlib.network_check.network_verdict`), from its latent
+    distance under the given network and under each other committed network; recorded in
+    ``method["network_check"]``.
 
     Returns:
-        Whether the network is worse than REFERENCE_RATIO times the reference, or the code farther than
-        LATENT_DISTANCE (when the checkpoint holds its training shapes' latent statistics).
+        The verdict, or None when the given network holds no latent statistics (a loaded network, an older
+        checkpoint): then the record says the check could not run.
     """
-    points, normals = result.points, result.normals
-    k = min(max(result.num_existing, 1), len(points))
-    boxes = fit_cluster_boxes(torch.as_tensor(points), torch.as_tensor(normals), k, seed=seed)
-    reference = float(_chamfer(points[None], boxes.cuboids, seed, result.chamfer_convention)[0])
-    ratio = result.chamfer / max(reference, 1e-12)
     latent = result.method.get("latent_distance")
-    far = latent is not None and latent > LATENT_DISTANCE
-    worse = ratio > REFERENCE_RATIO or far
-    result.method["reference_check"] = {
-        "kmeans_boxes": k, "kmeans_chamfer": round(reference, 7), "network_chamfer": round(result.chamfer, 7),
-        "ratio": round(ratio, 3), "threshold": REFERENCE_RATIO, "latent_distance": latent,
-        "latent_threshold": LATENT_DISTANCE, "worse": worse}
-    return worse
+    if latent is None or path is None:
+        result.method["network_check"] = {"speaks": False, "route": None, "unchecked": (
+            "the network carries no latent statistics of its training shapes: pass a committed name or a released "
+            "checkpoint file (cuboidlib.release.add_latent_statistics adds them)")}
+        return None
+    given, threshold = _given_name(path)
+    others = {name: v for name, v in committed_networks(resolve_device(device)).items() if name != given}
+    others_d = latent_distances(result.points[None], result.normals[None], others)  # rounded as the given one is
+    distances = {given: float(latent), **{name: round(float(d[0]), 2) for name, d in others_d.items()}}
+    thresholds = {given: threshold, **{name: LATENT_THRESHOLDS.get(name, DEFAULT_THRESHOLD) for name in others}}
+    verdict = network_verdict(distances, thresholds, given)
+    result.method["network_check"] = verdict.to_dict()
+    return verdict
 
 
-def reference_check_reasons(check: dict) -> str:
-    """Why a ``method["reference_check"]`` record found that the network does not fit the shape, in words.
-
-    Args:
-        check: the record (:func:`abstract` with ``check=True``).
-
-    Returns:
-        One clause per reason that applies, joined by "and"; "" when none does.
-    """
-    reasons = []
-    if check["ratio"] > check["threshold"]:
-        reasons.append(f"the network's cuboids reconstruct it {check['ratio']:.1f}x worse than k-means boxes with as "
-                       f"many boxes ({check['kmeans_boxes']}; Chamfer {check['network_chamfer']:.3g} against "
-                       f"{check['kmeans_chamfer']:.3g})")
-    latent = check.get("latent_distance")
-    if latent is not None and latent > check["latent_threshold"]:
-        reasons.append(f"it is unlike the shapes the network was trained on (latent distance {latent:.1f}, above "
-                       f"{check['latent_threshold']:g}; the network's own test shapes lie below)")
-    return " and ".join(reasons)
-
-
-def _reference_warning(result: Abstraction, fell_back: bool) -> None:
-    check = result.method["reference_check"] if not fell_back else result.method["fallback"]["reference_check"]
+def _network_warning(result: Abstraction, verdict: NetworkVerdict, fell_back: bool) -> None:
+    """Warn that the network does not know the shape, with the route (:func:`verdict_advice`) or the one taken."""
     name = result.source or "the shape"
-    then = ("abstract fell back to the per-shape fit (fallback=True)" if fell_back else
-            "this network does not fit the shape; pass model=None (the per-shape fit, `cuboidlib fit`) or "
-            "fallback=True")
-    warnings.warn(NetworkFitWarning(f"{name}: {reference_check_reasons(check)}; {then}"), stacklevel=4)  # the caller of abstract()
+    if not fell_back:
+        then = verdict_advice(verdict)
+    elif verdict.route == "fit":
+        then = "abstract fell back to the per-shape fit (fallback=True)"
+    else:
+        then = f"abstract used the {verdict.route} network instead (fallback=True)"
+    warnings.warn(NetworkFitWarning(f"{name}: {verdict_reasons(verdict)}; {then}"), stacklevel=4)  # the caller of abstract()
 
 
 def up_axis_scores(shape, model, *, n_points: int | None = None, seed: int = 0, threshold: float = 0.5,
@@ -537,16 +517,17 @@ def abstract(
             the two-sided distance (:func:`cuboidlib.fitting.tighten_cuboids`) follows, and the network's own
             cuboids are kept when the refined ones do not have a lower Chamfer distance (recorded in
             ``method["refine"]``): a refinement never makes the result worse.
-        check: with a network, compare its Chamfer distance with that of k-means boxes with as many boxes
-            (``method["reference_check"]``; off by default, since it adds k-means to every call, and on in
-            ``cuboidlib abstract``) and warn (:class:`NetworkFitWarning`) when it is more than
-            :data:`REFERENCE_RATIO` times worse, or when the shape's latent code lies farther than
-            :data:`LATENT_DISTANCE` from the network's training shapes (``method["latent_distance"]``, recorded
-            whenever the checkpoint holds their statistics): the network does not fit this shape (not when the
-            orientation warning speaks: a shape on its side is turned upright first).
-        fallback: with a network, return the per-shape fit (``model=None``, default FitConfig, same frame)
-            instead when the check finds the network that much worse (it still warns, and the network's
-            record is kept in ``method["fallback"]``).
+        check: with a network, check that it knows the shape (:mod:`cuboidlib.network_check`): the shape's latent
+            distance under it and under each other committed network, each read against that network's threshold
+            (:data:`cuboidlib.network_check.LATENT_THRESHOLDS`); recorded in ``method["network_check"]``. It
+            warns (:class:`NetworkFitWarning`) when the shape lies nearer another network's training shapes
+            (the message names that network) or beyond every network's threshold (it names the per-shape fit,
+            ``model=None``); not when the orientation warning speaks (a shape on its side is turned upright
+            first). Off by default (it runs the other networks' encoders), on in ``cuboidlib abstract``. A loaded
+            network without its checkpoint carries no latent statistics: the record then says it was not checked.
+        fallback: with a network, take the route the check names instead when it speaks: the other network
+            (same frame, same options) or the per-shape fit (default FitConfig). It still warns, and the given
+            network's record is kept in ``method["fallback"]``.
         merge: with a network, last merge the cuboids that cut one part into pieces
             (:func:`cuboidlib.merging.merge_split_cuboids` with this ``max_growth``, e.g. 0.25; recorded in
             ``method["merge"]``); None (default) keeps the network's cuboids.
@@ -614,19 +595,27 @@ def _abstract(shape, model, n_points, seed, threshold, centers, fit_config, part
         ran = None if k is None else (batch.item_batch(k), points[k:k + 1])  # the network already ran in this frame
         result = _by_network(pc, net, state, path, rotation, **one_pass, ran=ran)
         _orientation_warning(result, dict(zip(AXES, (float(c) for c in scores))))
-    if not (check or fallback) or not _reference_check(result, seed):
+    if not (check or fallback):
+        return result
+    verdict = _network_check(result, path, device)
+    if verdict is None or not verdict.speaks:
         return result
     if result.method.get("up_check", {}).get("suggested"):  # the orientation warning comes first: turn it upright
         return result
-    result.method["reference_check"]["warned"] = True
+    result.method["network_check"]["warned"] = True
     if not fallback:
-        _reference_warning(result, fell_back=False)
+        _network_warning(result, verdict, fell_back=False)
         return result
-    fit = _by_fitting(pc, rotation, None, part_names, source, seed, progress)
-    fit.method["fallback"] = {"network": {k: v for k, v in result.method.items() if k != "reference_check"},
-                              "reference_check": result.method["reference_check"]}
-    _reference_warning(fit, fell_back=True)
-    return fit
+    record = {"network": {k: v for k, v in result.method.items() if k != "network_check"},
+              "network_check": result.method["network_check"]}
+    if verdict.route == "fit":
+        taken = _by_fitting(pc, rotation, None, part_names, source, seed, progress)
+    else:
+        net, state, path = _load_network(verdict.route, device)
+        taken = _by_network(pc, net, state, path, rotation, **{**one_pass, "centroids": _centroids(centers, state)})
+    taken.method["fallback"] = record
+    _network_warning(taken, verdict, fell_back=True)
+    return taken
 
 
 def _check_frame_options(up, front) -> None:

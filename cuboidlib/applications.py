@@ -219,7 +219,7 @@ def latent_distance(mu, statistics: dict[str, torch.Tensor]) -> torch.Tensor:
     """The Mahalanobis distance of latent codes from the codes of a network's training shapes.
 
     About sqrt(D) for a shape like the training shapes (D = latent_dim, 64 for the course's networks); much
-    more for a shape of another kind (measured in ``benchmarks/bench_reference_check.py``).
+    more for a shape of another kind (measured in ``benchmarks/bench_warning.py``).
 
     Args:
         mu: (B, D) or (D,) latent means (:func:`encode_shapes`).

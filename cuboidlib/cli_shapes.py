@@ -187,7 +187,7 @@ def _save(args, result, stem: str | None, bar) -> list:
 
 def warnings_of(result) -> list[str]:
     """The warnings of one result, one line each, naming the shape: the orientation check's, ``--up auto``'s when
-    it could hardly tell up from down, and the reference check's (:func:`cuboidlib.abstract`).
+    it could hardly tell up from down, and the network check's (:func:`cuboidlib.abstract`).
 
     Args:
         result: an :class:`~cuboidlib.results.Abstraction`.
@@ -210,12 +210,14 @@ def warnings_of(result) -> list[str]:
         if auto["upside_down_margin"] < UPSIDE_DOWN_MARGIN:
             lines.append(f"{name}: --up auto could hardly tell up from down (it kept {frame_of(result)}): check it, "
                          "and pass --up and --front if you know them")
-    ref = (result.method or {}).get("reference_check", {})
-    if ref.get("warned"):
-        from .abstraction import reference_check_reasons  # imports torch: start-up time (already loaded here)
+    check = (result.method or {}).get("network_check", {})
+    if check.get("warned"):
+        from .network_check import NetworkVerdict, verdict_advice, verdict_reasons  # imports torch: start-up time
 
-        lines.append(f"{name}: {reference_check_reasons(ref)}; this network does not fit the shape, `cuboidlib fit` "
-                     "(model=None) fits it without one")
+        verdict = NetworkVerdict.from_dict(check)
+        lines.append(f"{name}: {verdict_reasons(verdict)}; {verdict_advice(verdict, command_line=True)}")
+    elif check.get("unchecked"):
+        lines.append(f"{name}: the network check could not run: {check['unchecked']}")
     return lines
 
 

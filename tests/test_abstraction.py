@@ -308,45 +308,80 @@ def test_a_refinement_never_returns_a_higher_chamfer_distance_than_the_networks(
     assert np.array_equal(kept.labels, network.labels), "the start is returned whole, segmentation included"
 
 
-def test_a_network_off_its_category_warns_with_the_figures_and_can_fall_back_to_the_fit():
+def test_a_shape_of_another_category_warns_naming_that_network_and_fallback_takes_it():
     import warnings
 
-    from cuboidlib.abstraction import REFERENCE_RATIO, NetworkFitWarning
+    from cuboidlib.abstraction import NetworkFitWarning
 
     s = make_shape("table", 0, n_points=1024)
     cloud = np.concatenate([s.points, s.normals], axis=1)
-    with pytest.warns(NetworkFitWarning, match=r"worse than k-means boxes with as many boxes .*model=None") as caught:
+    with pytest.warns(NetworkFitWarning, match=r"nearer the table network's .* pass model='table'") as caught:
         off = cuboidlib.abstract(cloud, model="chair", up="y", check=True)
     assert caught[0].filename == __file__, "the warning points at the caller's line"
-    check = off.method["reference_check"]
-    assert check["worse"] and check["warned"] and check["ratio"] > REFERENCE_RATIO and check["kmeans_boxes"] == off.num_existing
-    assert check["network_chamfer"] == pytest.approx(off.chamfer, abs=1e-6)
-    with pytest.warns(NetworkFitWarning, match="fell back to the per-shape fit"):
-        fallen = cuboidlib.abstract(cloud, model="chair", up="y", fallback=True)
-    assert fallen.method["name"] == "fit" and fallen.method["fallback"]["reference_check"]["worse"]
-    assert fallen.chamfer < off.chamfer
+    check = off.method["network_check"]
+    assert check["speaks"] and check["warned"] and check["route"] == "table" and check["given"] == "chair"
+    assert check["latent_distance"]["chair"] == off.method["latent_distance"] > check["threshold"]["chair"]
+    assert check["latent_distance"]["table"] < check["threshold"]["table"]
+    with pytest.warns(NetworkFitWarning, match="used the table network instead"):
+        taken = cuboidlib.abstract(cloud, model="chair", up="y", fallback=True)
+    assert taken.method["name"] == "network" and Path(taken.method["checkpoint"]).stem == "table"
+    assert taken.method["fallback"]["network_check"]["route"] == "table"
+    assert taken.method["fallback"]["network"]["latent_distance"] == off.method["latent_distance"]
     with warnings.catch_warnings():
         warnings.simplefilter("error", NetworkFitWarning)
         own = cuboidlib.abstract(cloud, model="table", up="y", check=True)
         unchecked = cuboidlib.abstract(cloud, model="chair", up="y")
-    assert not own.method["reference_check"]["worse"] and "reference_check" not in unchecked.method
+    assert taken.chamfer == pytest.approx(own.chamfer, abs=1e-9), "the route is the table network's own result"
+    assert taken.chamfer < off.chamfer
+    assert not own.method["network_check"]["speaks"] and "network_check" not in unchecked.method
     with pytest.raises(ValueError, match="check and fallback must be True or False"):
         cuboidlib.abstract(cloud, model="chair", check="yes")
 
 
-def test_a_shape_unlike_the_training_shapes_warns_by_its_latent_distance_where_k_means_is_as_poor():
-    from cuboidlib.abstraction import LATENT_DISTANCE, REFERENCE_RATIO, NetworkFitWarning
+def test_a_shape_no_network_knows_warns_naming_the_fit_and_fallback_fits_it():
+    from cuboidlib.abstraction import NetworkFitWarning
     from cuboidlib.thin_shapes import thin_shape
 
     insect = np.concatenate(thin_shape("insect", 0, 1024), axis=1)
-    with pytest.warns(NetworkFitWarning, match=r"unlike the shapes the network was trained on \(latent distance"):
+    with pytest.warns(NetworkFitWarning, match=r"unlike the training shapes of every network .*model=None"):
         result = cuboidlib.abstract(insect, model="animal", up="y", check=True)
-    check = result.method["reference_check"]
-    assert check["ratio"] <= REFERENCE_RATIO < check["ratio"] * 3, "k-means boxes are as poor: the ratio is silent"
-    assert check["latent_distance"] == result.method["latent_distance"] > 2 * LATENT_DISTANCE
-    animal = make_shape("animal", 3, n_points=1024, version=1)  # the network's own kind of shape
-    own = cuboidlib.abstract(np.concatenate([animal.points, animal.normals], axis=1), model="animal", up="y")
-    assert own.method["latent_distance"] < LATENT_DISTANCE  # recorded on every call of a released network
+    check = result.method["network_check"]
+    assert check["route"] == "fit" and all(check["latent_distance"][n] > check["threshold"][n] for n in check["threshold"])
+    with pytest.warns(NetworkFitWarning, match="fell back to the per-shape fit"):
+        fitted = cuboidlib.abstract(insect, model="animal", up="y", fallback=True)
+    assert fitted.method["name"] == "fit" and fitted.method["fallback"]["network_check"]["route"] == "fit"
+    assert fitted.chamfer < result.chamfer
+
+
+def test_a_checkpoint_outside_the_committed_ones_is_checked_with_the_default_threshold(tmp_path):
+    import shutil
+
+    from cuboidlib.applications import committed_checkpoints
+    from cuboidlib.network_check import DEFAULT_THRESHOLD, LATENT_THRESHOLDS
+
+    mine = shutil.copy(committed_checkpoints()["chair"], tmp_path / "mine.pt")  # the chair network, by another name
+    s = make_shape("chair", 2, n_points=1024)
+    result = cuboidlib.abstract(np.concatenate([s.points, s.normals], axis=1), model=mine, up="y", check=True)
+    check = result.method["network_check"]
+    assert check["given"] == "mine.pt" and check["threshold"]["mine.pt"] == DEFAULT_THRESHOLD
+    assert set(check["latent_distance"]) == {"mine.pt", *committed_checkpoints()}
+    assert check["latent_distance"]["mine.pt"] == pytest.approx(check["latent_distance"]["chair"], abs=0.01)
+    assert (DEFAULT_THRESHOLD == LATENT_THRESHOLDS["chair"]) == (not check["speaks"]), \
+        "the same network: silent unless its own threshold is below the committed one's"
+
+
+def test_a_loaded_network_without_its_checkpoint_is_recorded_as_unchecked():
+    import warnings
+
+    from cuboidlib.abstraction import NetworkFitWarning
+    from cuboidlib.thin_shapes import thin_shape
+
+    net = cuboidlib.load_trained_model("animal")[0]
+    insect = np.concatenate(thin_shape("insect", 0, 1024), axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NetworkFitWarning)
+        result = cuboidlib.abstract(insect, model=net, up="y", check=True)
+    assert not result.method["network_check"]["speaks"] and "latent statistics" in result.method["network_check"]["unchecked"]
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

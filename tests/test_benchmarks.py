@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -91,3 +92,18 @@ def test_bench_rotation_scores_each_option_on_turned_shapes_and_writes_its_json(
     assert set(summary) >= {"upright_miou", "yaw 0", "yaw 180", "random"}
     assert summary["random"]["auto"]["up_within_10"] == 1.0, "two test chairs turned at random, found"
     assert {r["option"] for r in doc["records"]} == {"upright", "none", "auto"}
+
+
+def test_bench_warning_prints_each_group_against_its_target_and_writes_its_json(tmp_path):
+    out = tmp_path / "warning.json"
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_warning.py"), "--shapes", "2",
+                           "--routes", "1", "--verify", "1", "--json", str(out)], capture_output=True, text=True,
+                          timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    for kind, what in (("own test", "silent"), ("off test", "speaks"), ("thin", "speaks")):
+        assert re.search(rf"^{kind}\s+(\s*\d+/\d+\s+spk){{4}}\s+\d+/\d+\s+[\d.]+% {what} \((met|MISSED)", proc.stdout,
+                         re.M), proc.stdout
+    assert "0 verdicts differ" in proc.stdout, "the batched verdicts are abstract's"
+    doc = json.loads(out.read_text())
+    assert doc["table"]["own test"]["chair"]["shapes"] == 2 and doc["table"]["off test"]["chair"]["shapes"] == 6
+    assert set(doc["thresholds"]) == {"chair", "table", "airplane", "animal"} and doc["verify_differ"] == 0

@@ -27,7 +27,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("checkpoint", "export", "toy2d", "dataset"),             # weights, result files, the 2D toy, data sets
     ("results", "runs"),                                      # the result types; a run's bookkeeping
     ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, the count
-    ("fitting", "evaluation"),                                # the per-shape fit, the test-split scores
+    ("fitting", "evaluation", "network_check"),               # the per-shape fit, the test-split scores, the network check
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
     ("release",),                                             # a trained run -> a committed network and card
     ("cli_common",),                                          # what the commands share: errors, inputs, outputs
