@@ -1,0 +1,128 @@
+"""The gate for networks trained on generator version 2 (``cuboidlib.shapes.GENERATOR_VERSION``).
+
+A network trained on version 2 replaces the committed one of its category when both hold:
+
+* on the version-1 test split it is at most ``MAX_V1_DROP`` mIoU points below the committed network;
+* it is better (higher mIoU) on the version-2 test split and on the real meshes of
+  ``benchmarks/bench_real_meshes.py``.
+
+For each ``--candidate CATEGORY=RUN`` this scores the committed network and the candidate the same way: the test
+split of each generator version (``cuboidlib evaluate NETWORK --generator-version V``: mIoU by label transfer, the
+Chamfer distance, N_AC) and the real meshes of the category (``bench_real_meshes.py --no-fit --no-refine``: mIoU by
+label transfer over the category's real meshes, and each shape's Chamfer distance in the file's own units). It
+prints the table and the verdict, and writes them with every score to ``--json``.
+
+    python experiments/generator_v2.py --candidate animal=runs/animal_v2/finetune \\
+        --root quaternius=/work/realsrc/quaternius --root pyvista=data_samples/real/pyvista \\
+        --json experiments/results/generator_v2.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from cuboidlib.cli import main as cuboidlib_main  # noqa: E402
+from cuboidlib.files import write_text_atomic  # noqa: E402
+
+import bench_real_meshes  # noqa: E402
+
+CATEGORIES = ("chair", "table", "airplane", "animal")
+#: The largest mIoU drop on the version-1 test split a candidate may have, in points.
+MAX_V1_DROP = 2.0
+
+
+def split_scores(network: str, version: int) -> dict:
+    """``cuboidlib evaluate NETWORK --generator-version VERSION`` on the test split: mIoU (%), CD, N_AC."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "scores.json"
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = cuboidlib_main(["evaluate", network, "--generator-version", str(version), "--json", str(out)])
+        if code != 0:
+            raise SystemExit(f"cuboidlib evaluate {network} failed with exit code {code}")
+        result = json.loads(out.read_text())["results"][0]
+    return {"miou": round(100 * result["miou"], 2), "chamfer": result["chamfer"][0]["value"],
+            "n_ac": result["n_ac"]}
+
+
+def real_scores(category: str, network: str, roots: list[str]) -> dict:
+    """The network on the category's real meshes: mIoU (%) by label transfer and each shape's Chamfer distance."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "real.json"
+        args = ["--categories", category, "--no-fit", "--no-refine", "--seeds", "1", "--json", str(out)]
+        args += [a for root in roots for a in ("--root", root)]
+        if network != category:
+            args += ["--model", f"{category}={network}"]
+        with contextlib.redirect_stdout(io.StringIO()):
+            bench_real_meshes.main(args)
+        doc = json.loads(out.read_text())
+    summary = doc["summary"][category]
+    return {"miou": round(100 * summary["net_miou"], 2), "shapes": summary["shapes"],
+            "part_iou": summary.get("net_part_iou"),
+            "chamfer": {row["name"]: row["net"]["chamfer"] for row in doc["shapes"]}}
+
+
+def verdict(committed: dict, candidate: dict) -> dict:
+    """The gate's three tests and whether the candidate passes all of them."""
+    real_ratio = float(np.median([candidate["real"]["chamfer"][n] / committed["real"]["chamfer"][n]
+                                  for n in committed["real"]["chamfer"]]))
+    tests = {
+        "v1_drop": round(committed["v1"]["miou"] - candidate["v1"]["miou"], 2),
+        "v1_within": committed["v1"]["miou"] - candidate["v1"]["miou"] <= MAX_V1_DROP,
+        "v2_better": candidate["v2"]["miou"] > committed["v2"]["miou"],
+        "real_better": candidate["real"]["miou"] > committed["real"]["miou"],
+        "real_chamfer_median_ratio": round(real_ratio, 3),
+    }
+    tests["replaces"] = tests["v1_within"] and tests["v2_better"] and tests["real_better"]
+    return tests
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--candidate", action="append", required=True, metavar="CATEGORY=RUN",
+                        help="a network trained on version 2: a checkpoint or a training run's folder, repeatable")
+    parser.add_argument("--root", action="append", default=[], metavar="NAME=DIR",
+                        help="a source folder of the real meshes (benchmarks/real_meshes/README.md), repeatable")
+    parser.add_argument("--json", type=Path, help="write every score and the verdicts here")
+    args = parser.parse_args(argv)
+    candidates = {}
+    for item in args.candidate:
+        category, sep, run = item.partition("=")
+        if not sep or category not in CATEGORIES or not Path(run).exists():
+            parser.error(f"--candidate takes CATEGORY=RUN with CATEGORY one of {', '.join(CATEGORIES)} and RUN an "
+                         f"existing checkpoint or run folder, got {item!r}")
+        candidates[category] = run
+    doc = {"command": "python " + " ".join([sys.argv[0]] + (argv if argv is not None else sys.argv[1:])),
+           "max_v1_drop": MAX_V1_DROP, "categories": {}}
+    print(f"{'category':9s} {'network':34s} {'v1 mIoU':>8s} {'v2 mIoU':>8s} {'real mIoU':>10s} {'v1 CD x1000':>12s} "
+          f"{'v2 CD x1000':>12s}")
+    for category, run in candidates.items():
+        scores = {}
+        for label, network in (("committed", category), ("candidate", run)):
+            scores[label] = {"network": network, "v1": split_scores(network, 1), "v2": split_scores(network, 2),
+                             "real": real_scores(category, network, args.root)}
+            s = scores[label]
+            print(f"{category:9s} {network[-34:]:34s} {s['v1']['miou']:8.1f} {s['v2']['miou']:8.1f} "
+                  f"{s['real']['miou']:10.1f} {1000 * s['v1']['chamfer']:12.3f} {1000 * s['v2']['chamfer']:12.3f}",
+                  flush=True)
+        scores["verdict"] = verdict(scores["committed"], scores["candidate"])
+        print(f"{category:9s} verdict: {json.dumps(scores['verdict'])}", flush=True)
+        doc["categories"][category] = scores
+    if args.json:
+        write_text_atomic(args.json, json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
