@@ -344,6 +344,32 @@ def print_summary(source: str, category: str, summary: dict, options) -> None:
         print(f"   {name:10s} " + " | ".join(cells), flush=True)
 
 
+def markdown(doc: dict) -> str:
+    """The Markdown tables of a ``--json`` file (``--table``). Per source and category, for every option: the share
+    of all turned cases with the up within 10 degrees, and over the turns (the yaws, the random rotations and for
+    the real meshes the file's own axes) the largest median Chamfer ratio to upright and the largest mIoU loss in
+    points; then the cost."""
+    options = doc["options"]
+    lines = ["| shapes | " + " | ".join(f"{o}: up within 10 degrees / worst CD ratio / worst mIoU change" for o in options)
+             + " |", "|" + " --- |" * (1 + len(options))]
+    for source, by_category in doc["summary"].items():
+        for category, summary in by_category.items():
+            turns = {t: e for t, e in summary.items() if isinstance(e, dict)}
+            cells = []
+            for o in options:
+                entries = [e[o] for e in turns.values() if o in e]
+                cases = sum(e["cases"] for e in entries)
+                within = sum(e["up_within_10"] * e["cases"] for e in entries) / max(cases, 1)
+                miou = [e["miou_minus_upright_points"] for e in entries if "miou_minus_upright_points" in e]
+                cells.append(f"{100 * within:.0f} % of {cases} / {max(e['median_ratio'] for e in entries):.2f}x"
+                             + (f" / {min(miou):+.1f}" if miou else ""))
+            lines.append(f"| {source} {category} | " + " | ".join(cells) + " |")
+    if doc.get("cost"):
+        lines += ["", "| network | up='y' (CPU s) | default / up='y' | up='auto' / up='y' |", "| --- | --- | --- | --- |"]
+        lines += [f"| {c} | {r['y_cpu_s']:.3f} | {r['default_over_y']:.2f}x | {r['auto_over_y']:.2f}x |"
+                  for c, r in doc["cost"].items()]
+    return "\n".join(lines)
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--root", action="append", default=[], metavar="NAME=DIR",
@@ -359,7 +385,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--geometry", action="store_true",
                         help="instead, what the search measures on each upright shape, no network (the constants of "
                              "cuboidlib.frames)")
+    parser.add_argument("--table", type=Path, metavar="FILE.json",
+                        help="print the Markdown tables of an earlier --json file, and nothing else")
     args = parser.parse_args(argv)
+    if args.table:
+        print(markdown(json.loads(args.table.read_text())))
+        return 0
     args.options = [o.strip() for o in args.options.split(",") if o.strip()]
     if any(o not in OPTIONS for o in args.options):
         parser.error(f"--options: expected some of {', '.join(OPTIONS)}")
