@@ -852,6 +852,7 @@ def draw_abstraction(
     labels: torch.Tensor | None = None,
     normal_length: float = 0.12,
     title: str | None = None,
+    show_unused: bool = True,
 ) -> None:
     """Draw ONE shape on a matplotlib Axes: points, their normals as arrows, rectangles as outlines.
 
@@ -864,6 +865,7 @@ def draw_abstraction(
         labels: optional (N,) integers that colour the points.
         normal_length: arrow length.
         title: optional title.
+        show_unused: draw the unused rectangles (False: only the used ones, in their own colours).
     """
     import matplotlib.pyplot as plt  # imported here so that cuboidlib.toy2d does not need a display
 
@@ -888,7 +890,7 @@ def draw_abstraction(
             loop = torch.cat([corners[k], corners[k, :1]])
             if mask[k]:
                 ax.plot(loop[:, 0], loop[:, 1], "-", color=plt.cm.tab10(k % 10), lw=1.8, zorder=4)
-            else:
+            elif show_unused:
                 ax.plot(loop[:, 0], loop[:, 1], ":", color="0.6", lw=1.0, zorder=1)
     ax.set_aspect("equal")
     if title:

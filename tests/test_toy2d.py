@@ -606,3 +606,14 @@ def test_draw_abstraction_draws_points_normals_and_rectangles():
     assert len(ax.collections) == 2  # the points and the normal arrows
     assert ax.get_title() == "U"
     plt.close(fig)
+
+
+def test_draw_abstraction_can_leave_out_the_unused_rectangles():
+    shape = toy2d.u_shape()
+    fig, ax = plt.subplots()
+    used = torch.tensor([True, False, True])
+    toy2d.draw_abstraction(ax, rectangles=tuple(t[0] for t in shape), used=used, show_unused=False)
+    assert len(ax.lines) == 2  # the two used outlines only
+    assert all(line.get_linestyle() == "-" for line in ax.lines)
+    assert ax.lines[1].get_color() == plt.cm.tab10(2)  # each keeps the colour of its index
+    plt.close(fig)
