@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -93,6 +95,15 @@ def test_bench_rotation_scores_each_option_on_turned_shapes_and_writes_its_json(
     assert summary["random"]["auto"]["up_within_10"] == 1.0, "two test chairs turned at random, found"
     assert {r["option"] for r in doc["records"]} == {"upright", "none", "auto"}
 
+
+
+@pytest.mark.parametrize("name", ["rotation.json", "rotation_all_options.json"])
+def test_the_readme_rotation_tables_are_the_committed_runs(name):
+    """benchmarks/README.md shows ``bench_rotation.py --table`` of each committed run, cell for cell."""
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_rotation.py"), "--table",
+                           str(ROOT / "benchmarks" / "results" / name)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() in (ROOT / "benchmarks" / "README.md").read_text()
 
 def test_bench_warning_prints_each_group_against_its_target_and_writes_its_json(tmp_path):
     out = tmp_path / "warning.json"
