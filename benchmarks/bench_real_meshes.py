@@ -88,8 +88,9 @@ def network_cloud(shape) -> np.ndarray:
     return np.concatenate([points, normals], axis=1)
 
 
-def run_shape(shape, net_points: int, args) -> tuple[dict, dict]:
-    """One shape: every method's record, and the network's result for the picture.
+def run_shape(shape, model: str, net_points: int, args) -> tuple[dict, dict]:
+    """One shape: every method's record, and the network's result for the picture. ``model``: the network as
+    ``abstract`` takes it, a committed name or a checkpoint (``--model``).
 
     The network (and its refinement and the k-means boxes) sees the first ``net_points`` points, as many as it
     was trained with; the fit sees all of them; every Chamfer distance is measured against all of them."""
@@ -100,7 +101,7 @@ def run_shape(shape, net_points: int, args) -> tuple[dict, dict]:
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        out = abstract(seen, shape.category, seed=0, up="y", check=True)  # by name: with its latent statistics
+        out = abstract(seen, model, seed=0, up="y", check=True)  # by name or path: with its latent statistics
     row["net"] = {"chamfer": chamfer(points, out.cuboids_in()), "cuboids": out.num_existing,
                   "seconds": round(time.perf_counter() - start, 2),
                   "warned": any(issubclass(w.category, NetworkFitWarning) for w in caught),
@@ -108,7 +109,7 @@ def run_shape(shape, net_points: int, args) -> tuple[dict, dict]:
     pictures = {"net": out}
     if args.refine:
         start = time.perf_counter()
-        ref = abstract(seen, shape.category, seed=0, up="y", refine=args.refine)
+        ref = abstract(seen, model, seed=0, up="y", refine=args.refine)
         row["refined"] = {"chamfer": chamfer(points, ref.cuboids_in()), "seconds": round(time.perf_counter() - start, 2)}
         pictures["refined"] = ref
     if not args.no_fit:
@@ -240,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         net_points = int(state["config"]["n_points"])
         done, parts = [], {"net": ([], []), "refined": ([], [])}
         for shape in group:
-            row, pictures = run_shape(shape, net_points, args)
+            row, pictures = run_shape(shape, models.get(category, category), net_points, args)
             done.append(row)
             for key in parts:
                 if "truth" in pictures and key in pictures["segments"]:
