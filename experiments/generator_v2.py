@@ -87,14 +87,39 @@ def verdict(committed: dict, candidate: dict) -> dict:
     return tests
 
 
+def markdown(docs: list[dict]) -> str:
+    """The Markdown table of earlier ``--json`` files (``--table``): per category, both networks' mIoU on each
+    test split and on the real meshes, the Chamfer distances x1000, and the verdict."""
+    lines = ["| category | network | v1 mIoU | v2 mIoU | real mIoU | v1 CD x1000 | v2 CD x1000 | real CD / committed's "
+             "(median) | replaces |", "|" + " --- |" * 9]
+    for doc in docs:
+        for category, scores in doc["categories"].items():
+            v = scores["verdict"]
+            for label in ("committed", "candidate"):
+                s = scores[label]
+                ratio = "1" if label == "committed" else f"{v['real_chamfer_median_ratio']:.2f}"
+                replaces = "" if label == "committed" else ("yes" if v["replaces"] else "no")
+                lines.append(f"| {category} | {label} | {s['v1']['miou']:.1f} | {s['v2']['miou']:.1f} | "
+                             f"{s['real']['miou']:.1f} | {1000 * s['v1']['chamfer']:.3f} | "
+                             f"{1000 * s['v2']['chamfer']:.3f} | {ratio} | {replaces} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--candidate", action="append", required=True, metavar="CATEGORY=RUN",
+    parser.add_argument("--candidate", action="append", default=[], metavar="CATEGORY=RUN",
                         help="a network trained on version 2: a checkpoint or a training run's folder, repeatable")
     parser.add_argument("--root", action="append", default=[], metavar="NAME=DIR",
                         help="a source folder of the real meshes (benchmarks/real_meshes/README.md), repeatable")
     parser.add_argument("--json", type=Path, help="write every score and the verdicts here")
+    parser.add_argument("--table", type=Path, nargs="+", metavar="FILE.json",
+                        help="print the Markdown table of earlier --json files, and nothing else")
     args = parser.parse_args(argv)
+    if args.table:
+        print(markdown([json.loads(path.read_text()) for path in args.table]))
+        return 0
+    if not args.candidate:
+        parser.error("give at least one --candidate CATEGORY=RUN (or --table)")
     candidates = {}
     for item in args.candidate:
         category, sep, run = item.partition("=")
