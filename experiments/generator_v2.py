@@ -92,14 +92,20 @@ def markdown(docs: list[dict]) -> str:
     test split and on the real meshes, the Chamfer distances x1000, and the verdict."""
     lines = ["| category | network | v1 mIoU | v2 mIoU | real mIoU | v1 CD x1000 | v2 CD x1000 | real CD / committed's "
              "(median) | replaces |", "|" + " --- |" * 9]
+    shown = set()
     for doc in docs:
         for category, scores in doc["categories"].items():
             v = scores["verdict"]
             for label in ("committed", "candidate"):
+                if label == "committed" and category in shown:  # the same network, scored the same way
+                    continue
+                shown.add(category)
                 s = scores[label]
+                where = Path(s["network"])  # a candidate's folder names it (results/generator_v2/<name>/best.pt)
+                name = label if label == "committed" else f"{label} ({(where.parent if where.suffix else where).name})"
                 ratio = "1" if label == "committed" else f"{v['real_chamfer_median_ratio']:.2f}"
                 replaces = "" if label == "committed" else ("yes" if v["replaces"] else "no")
-                lines.append(f"| {category} | {label} | {s['v1']['miou']:.1f} | {s['v2']['miou']:.1f} | "
+                lines.append(f"| {category} | {name} | {s['v1']['miou']:.1f} | {s['v2']['miou']:.1f} | "
                              f"{s['real']['miou']:.1f} | {1000 * s['v1']['chamfer']:.3f} | "
                              f"{1000 * s['v2']['chamfer']:.3f} | {ratio} | {replaces} |")
     return "\n".join(lines)
