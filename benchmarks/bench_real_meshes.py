@@ -193,6 +193,18 @@ def draw(path: Path, shape, pictures: dict) -> None:
     plt.close(fig)
 
 
+def parse_roots(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, Path]:
+    """``--root NAME=DIR`` options (the real meshes' source folders) as {name: folder}; a malformed one is a usage
+    error of ``parser``."""
+    roots = {}
+    for item in items:
+        name, sep, folder = item.partition("=")
+        if not sep:
+            parser.error(f"--root takes NAME=DIR, got {item!r}")
+        roots[name] = Path(folder)
+    return roots
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--root", action="append", default=[], metavar="NAME=DIR",
@@ -217,12 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         if not sep or name not in CATEGORIES:
             parser.error(f"--model takes CATEGORY=CHECKPOINT with CATEGORY one of {', '.join(CATEGORIES)}, got {item!r}")
         models[name] = checkpoint
-    roots = {}
-    for item in args.root:
-        name, sep, folder = item.partition("=")
-        if not sep:
-            parser.error(f"--root takes NAME=DIR, got {item!r}")
-        roots[name] = Path(folder)
+    roots = parse_roots(parser, args.root)
     categories = [c.strip() for c in args.categories.split(",") if c.strip()]
     if any(c not in CATEGORIES for c in categories):
         parser.error(f"--categories: expected some of {', '.join(CATEGORIES)}, got {args.categories!r}")

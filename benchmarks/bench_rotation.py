@@ -395,12 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     if any(o not in OPTIONS for o in args.options):
         parser.error(f"--options: expected some of {', '.join(OPTIONS)}")
     categories = [c.strip() for c in args.categories.split(",") if c.strip()]
-    roots = {}
-    for item in args.root:
-        name, sep, folder = item.partition("=")
-        if not sep:
-            parser.error(f"--root takes NAME=DIR, got {item!r}")
-        roots[name] = Path(folder)
+    roots = real_bench.parse_roots(parser, args.root)
     warnings.simplefilter("ignore")
     torch.set_num_threads(1)
     doc = {"command": "python " + " ".join([sys.argv[0]] + (argv if argv is not None else sys.argv[1:])),

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench_real_meshes import network_cloud
+from bench_real_meshes import network_cloud, parse_roots
 from cuboidlib.abstraction import NetworkFitWarning, abstract
 from cuboidlib.dataset import load_splits
 from cuboidlib.files import write_text_atomic
@@ -260,12 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shapes", type=int, default=None, help="at most this many shapes per group (default all)")
     parser.add_argument("--json", type=Path, help="write the measurements here")
     args = parser.parse_args(argv)
-    roots = {}
-    for item in args.root:
-        name, sep, folder = item.partition("=")
-        if not sep:
-            parser.error(f"--root takes NAME=DIR, got {item!r}")
-        roots[name] = Path(folder)
+    roots = parse_roots(parser, args.root)
     torch.set_num_threads(1)
     start = time.perf_counter()
     groups = load_groups(roots, args.shapes)
