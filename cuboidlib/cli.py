@@ -30,6 +30,7 @@ from .cli_common import (BAR_DELAY, SUMMARY_FILE, Recording, UserError, bars, ch
                          resolved_model)
 from .cli_shapes import run_shapes
 from .files import MESH_FORMATS, write_text_atomic
+from .shapes import GENERATOR_VERSION, GENERATOR_VERSIONS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -93,8 +94,8 @@ def _add_samples_command(sub) -> None:
     p.add_argument("--points", type=int, default=2048, help="points per point cloud (default: 2048)")
     p.add_argument("--seed", type=int, default=0, help="collection seed (default: 0)")
     p.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
-    p.add_argument("--generator-version", type=int, choices=(1, 2), default=2,
-                   help="procedural generator (default: 2, the newest; the committed data_samples/ are version 1's, "
+    p.add_argument("--generator-version", type=int, choices=GENERATOR_VERSIONS, default=GENERATOR_VERSION,
+                   help=f"procedural generator (default: {GENERATOR_VERSION}, the newest; the committed data_samples/ are version 1's, "
                    "their figure samples.png; another version's figure is samples_v<version>.png)")
     p.add_argument("--categories", type=_part_names, default=None, metavar="NAMES",
                    help="comma-separated categories (default: chair,table,airplane,animal)")
@@ -159,8 +160,8 @@ def _add_train_command(sub) -> None:
                    "(with --category chair, table or airplane), the authors' data layout (<category>_train.npy ...) or "
                    "any folder of point-cloud / mesh files")
     p.add_argument("--data-seed", type=int, help="seed of the collection")
-    p.add_argument("--generator-version", type=int, choices=(1, 2),
-                   help="procedural generator (default: the newest, 2; a --config file without generator_version: 1, "
+    p.add_argument("--generator-version", type=int, choices=GENERATOR_VERSIONS,
+                   help=f"procedural generator (default: the newest, {GENERATOR_VERSION}; a --config file without generator_version: 1, "
                    "the shapes of the committed networks)")
     p.add_argument("--split", type=float, nargs=3, dest="split_fractions", metavar=("TRAIN", "VAL", "TEST"),
                    help="split fractions (default 0.7 0.1 0.2)")
@@ -356,7 +357,7 @@ def _add_evaluate_command(sub) -> None:
                    "layout or a folder of mesh / point cloud files (labels score the mIoU when the files have them); "
                    "every shape of it unless --split is given")
     p.add_argument("--category", help="the category to read from --data-dir (default: the checkpoint's)")
-    p.add_argument("--generator-version", type=int, choices=(1, 2),
+    p.add_argument("--generator-version", type=int, choices=GENERATOR_VERSIONS,
                    help="score on the shapes of this procedural generator (default: the checkpoint's, from its config; "
                    "a config without generator_version: 1)")
     p.add_argument("--part-names", type=_part_names, metavar="NAMES",
