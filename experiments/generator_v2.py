@@ -1,13 +1,13 @@
-"""The gate for networks trained on generator version 2 (``cuboidlib.shapes.GENERATOR_VERSION``).
+"""The gate for networks trained on a newer generator (version 2 or later, ``cuboidlib.shapes.GENERATOR_VERSIONS``).
 
-A network trained on version 2 replaces the committed one of its category when both hold:
+A network trained on version V > 1 replaces the committed one of its category when both hold:
 
 * on the version-1 test split it is at most ``MAX_V1_DROP`` mIoU points below the committed network;
-* it is better (higher mIoU) on the version-2 test split and on the real meshes of
+* it is better (higher mIoU) on the version-V test split and on the real meshes of
   ``benchmarks/bench_real_meshes.py``.
 
 For each ``--candidate CATEGORY=RUN`` this scores the committed network and the candidate the same way: the test
-split of each generator version (``cuboidlib evaluate NETWORK --generator-version V``: mIoU by label transfer, the
+splits of versions 1 and V (``cuboidlib evaluate NETWORK --generator-version V``: mIoU by label transfer, the
 Chamfer distance, N_AC) and the real meshes of the category (``bench_real_meshes.py --no-fit --no-refine``: mIoU by
 label transfer over the category's real meshes, and each shape's Chamfer distance in the file's own units). It
 prints the table and the verdict, and writes them with every score to ``--json``.
@@ -32,6 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from cuboidlib.checkpoint import load_checkpoint  # noqa: E402
 from cuboidlib.cli import main as cuboidlib_main  # noqa: E402
 from cuboidlib.files import write_text_atomic  # noqa: E402
 
@@ -55,6 +56,12 @@ def split_scores(network: str, version: int) -> dict:
             "n_ac": result["n_ac"]}
 
 
+def trained_version(run: str) -> int:
+    """The generator version a checkpoint (or a run folder's ``best.pt``) was trained on; none recorded: 1."""
+    path = Path(run) / "best.pt" if Path(run).is_dir() else Path(run)
+    return int(load_checkpoint(path)["config"].get("generator_version", 1))
+
+
 def real_scores(category: str, network: str, roots: list[str]) -> dict:
     """The network on the category's real meshes: mIoU (%) by label transfer and each shape's Chamfer distance."""
     with tempfile.TemporaryDirectory() as folder:
@@ -72,49 +79,54 @@ def real_scores(category: str, network: str, roots: list[str]) -> dict:
             "chamfer": {row["name"]: row["net"]["chamfer"] for row in doc["shapes"]}}
 
 
-def verdict(committed: dict, candidate: dict) -> dict:
-    """The gate's three tests and whether the candidate passes all of them."""
+def verdict(committed: dict, candidate: dict, version: int = 2) -> dict:
+    """The gate's three tests and whether the candidate, trained on generator ``version``, passes all of them."""
+    new = f"v{version}"
     real_ratio = float(np.median([candidate["real"]["chamfer"][n] / committed["real"]["chamfer"][n]
                                   for n in committed["real"]["chamfer"]]))
     tests = {
         "v1_drop": round(committed["v1"]["miou"] - candidate["v1"]["miou"], 2),
         "v1_within": committed["v1"]["miou"] - candidate["v1"]["miou"] <= MAX_V1_DROP,
-        "v2_better": candidate["v2"]["miou"] > committed["v2"]["miou"],
+        f"{new}_better": candidate[new]["miou"] > committed[new]["miou"],
         "real_better": candidate["real"]["miou"] > committed["real"]["miou"],
         "real_chamfer_median_ratio": round(real_ratio, 3),
     }
-    tests["replaces"] = tests["v1_within"] and tests["v2_better"] and tests["real_better"]
+    tests["replaces"] = tests["v1_within"] and tests[f"{new}_better"] and tests["real_better"]
     return tests
 
 
 def markdown(docs: list[dict]) -> str:
-    """The Markdown table of earlier ``--json`` files (``--table``): per category, both networks' mIoU on each
-    test split and on the real meshes, the Chamfer distances x1000, and the verdict."""
-    lines = ["| category | network | v1 mIoU | v2 mIoU | real mIoU | v1 CD x1000 | v2 CD x1000 | real CD / committed's "
-             "(median) | replaces |", "|" + " --- |" * 9]
+    """The Markdown table of earlier ``--json`` files (``--table``): per category and candidate's generator version V,
+    both networks' mIoU on the version-1 and version-V test splits and on the real meshes, the Chamfer distances
+    x1000, and the verdict."""
+    lines = ["| category | network | V | v1 mIoU | vV mIoU | real mIoU | v1 CD x1000 | vV CD x1000 | real CD / committed's "
+             "(median) | replaces |", "|" + " --- |" * 10]
     shown = set()
     for doc in docs:
+        version = doc.get("version", 2)  # files written before version 3 scored version 2
+        new = f"v{version}"
         for category, scores in doc["categories"].items():
             v = scores["verdict"]
             for label in ("committed", "candidate"):
-                if label == "committed" and category in shown:  # the same network, scored the same way
+                if label == "committed" and (category, version) in shown:  # the same network, scored the same way
                     continue
-                shown.add(category)
+                shown.add((category, version))
                 s = scores[label]
                 where = Path(s["network"])  # a candidate's folder names it (results/generator_v2/<name>/best.pt)
                 name = label if label == "committed" else f"{label} ({(where.parent if where.suffix else where).name})"
                 ratio = "1" if label == "committed" else f"{v['real_chamfer_median_ratio']:.2f}"
                 replaces = "" if label == "committed" else ("yes" if v["replaces"] else "no")
-                lines.append(f"| {category} | {name} | {s['v1']['miou']:.1f} | {s['v2']['miou']:.1f} | "
+                lines.append(f"| {category} | {name} | {version} | {s['v1']['miou']:.1f} | {s[new]['miou']:.1f} | "
                              f"{s['real']['miou']:.1f} | {1000 * s['v1']['chamfer']:.3f} | "
-                             f"{1000 * s['v2']['chamfer']:.3f} | {ratio} | {replaces} |")
+                             f"{1000 * s[new]['chamfer']:.3f} | {ratio} | {replaces} |")
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--candidate", action="append", default=[], metavar="CATEGORY=RUN",
-                        help="a network trained on version 2: a checkpoint or a training run's folder, repeatable")
+                        help="a network trained on version 2 or later: a checkpoint or a training run's folder, "
+                        "repeatable; every candidate of one call trained on the same version")
     parser.add_argument("--root", action="append", default=[], metavar="NAME=DIR",
                         help="a source folder of the real meshes (benchmarks/real_meshes/README.md), repeatable")
     parser.add_argument("--json", type=Path, help="write every score and the verdicts here")
@@ -133,20 +145,25 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--candidate takes CATEGORY=RUN with CATEGORY one of {', '.join(CATEGORIES)} and RUN an "
                          f"existing checkpoint or run folder, got {item!r}")
         candidates[category] = run
+    versions = {trained_version(run) for run in candidates.values()}
+    if len(versions) != 1 or min(versions) < 2:
+        parser.error(f"the candidates must be trained on one generator version, 2 or later; they were on {sorted(versions)}")
+    version = versions.pop()
+    new = f"v{version}"
     doc = {"command": "python " + " ".join([sys.argv[0]] + (argv if argv is not None else sys.argv[1:])),
-           "max_v1_drop": MAX_V1_DROP, "categories": {}}
-    print(f"{'category':9s} {'network':34s} {'v1 mIoU':>8s} {'v2 mIoU':>8s} {'real mIoU':>10s} {'v1 CD x1000':>12s} "
-          f"{'v2 CD x1000':>12s}")
+           "max_v1_drop": MAX_V1_DROP, "version": version, "categories": {}}
+    print(f"{'category':9s} {'network':34s} {'v1 mIoU':>8s} {new + ' mIoU':>8s} {'real mIoU':>10s} {'v1 CD x1000':>12s} "
+          f"{new + ' CD x1000':>12s}")
     for category, run in candidates.items():
         scores = {}
         for label, network in (("committed", category), ("candidate", run)):
-            scores[label] = {"network": network, "v1": split_scores(network, 1), "v2": split_scores(network, 2),
+            scores[label] = {"network": network, "v1": split_scores(network, 1), new: split_scores(network, version),
                              "real": real_scores(category, network, args.root)}
             s = scores[label]
-            print(f"{category:9s} {network[-34:]:34s} {s['v1']['miou']:8.1f} {s['v2']['miou']:8.1f} "
-                  f"{s['real']['miou']:10.1f} {1000 * s['v1']['chamfer']:12.3f} {1000 * s['v2']['chamfer']:12.3f}",
+            print(f"{category:9s} {network[-34:]:34s} {s['v1']['miou']:8.1f} {s[new]['miou']:8.1f} "
+                  f"{s['real']['miou']:10.1f} {1000 * s['v1']['chamfer']:12.3f} {1000 * s[new]['chamfer']:12.3f}",
                   flush=True)
-        scores["verdict"] = verdict(scores["committed"], scores["candidate"])
+        scores["verdict"] = verdict(scores["committed"], scores["candidate"], version)
         print(f"{category:9s} verdict: {json.dumps(scores['verdict'])}", flush=True)
         doc["categories"][category] = scores
     if args.json:

@@ -32,6 +32,15 @@ def test_a_candidate_replaces_only_when_all_three_tests_hold(gate):
     assert not gate.verdict(committed, _scores(80.0, 75.0, 59.0, good["real"]["chamfer"]))["replaces"]  # real fell
 
 
+def test_a_version_3_candidate_is_judged_on_the_version_3_split(gate):
+    committed = {"v1": {"miou": 80.0}, "v3": {"miou": 70.0}, "real": {"miou": 60.0, "chamfer": {"a": 1.0}}}
+    better = {"v1": {"miou": 79.0}, "v3": {"miou": 71.0}, "real": {"miou": 61.0, "chamfer": {"a": 1.0}}}
+    out = gate.verdict(committed, better, 3)
+    assert out["replaces"] and out["v3_better"] and "v2_better" not in out
+    worse = {**better, "v3": {"miou": 69.0}}
+    assert not gate.verdict(committed, worse, 3)["replaces"]
+
+
 @pytest.mark.parametrize("bad", ["animal", "boat=runs/x", "animal=/no/such/run"])
 def test_a_candidate_must_name_a_category_and_an_existing_run(gate, bad, capsys):
     with pytest.raises(SystemExit) as stop:

@@ -60,17 +60,27 @@ def _own_part(shape, i_point):
 
 
 @pytest.mark.parametrize("category", CATEGORIES)
-def test_version_1_shapes_keep_their_fingerprint_and_version_2_changes_only_airplanes_and_animals(category):
+def test_version_1_shapes_keep_their_fingerprint_and_later_versions_change_only_airplanes_and_animals(category):
     assert fingerprint(category, version=1) == VERSION_1_FINGERPRINTS[category]
     assert (fingerprint(category, version=2) == VERSION_1_FINGERPRINTS[category]) == (category in ("chair", "table"))
-    assert shapes.GENERATOR_VERSION == 2 and fingerprint(category) == fingerprint(category, version=2)
+    assert (fingerprint(category, version=3) == fingerprint(category, version=2)) == (category != "animal")
+    assert shapes.GENERATOR_VERSION == 3 and fingerprint(category) == fingerprint(category, version=3)
+
+
+def test_version_3_animals_are_version_2_without_the_thighs():
+    for i in range(20):
+        two, st2, sid2 = shapes.build_parts("animal", i, 0, version=2)
+        three, st3, sid3 = shapes.build_parts("animal", i, 0, version=3)
+        legs2, legs3 = [s for s in two if s.label == 2], [s for s in three if s.label == 2]
+        assert (len(legs2), len(legs3)) == (12, 8), "version 2: four thighs beside the eight leg capsules"
+        assert (st2, sid2) == (st3, sid3) and len(two) - len(three) == 4
 
 
 def test_a_bad_generator_version_is_refused_with_the_versions_named():
-    for bad in (0, 3, True, 2.0, "2", None):
+    for bad in (0, 4, True, 2.0, "2", None):
         for call in (lambda: make_shape("chair", 0, 64, version=bad), lambda: shapes.build_parts("animal", 0, version=bad),
                      lambda: make_collection("airplane", 2, 64, use_cache=False, version=bad)):
-            with pytest.raises(ValueError, match=r"generator version must be one of \(1, 2\)"):
+            with pytest.raises(ValueError, match=r"generator version must be one of \(1, 2, 3\)"):
                 call()
 
 
@@ -126,9 +136,9 @@ def test_version_2_animals_draw_posed_tails_wider_bodies_and_thighs_at_their_rat
     assert length.max() <= 0.7 + 1e-9 and np.mean(length < 0.16) < 0.1 < np.mean(v1_short), "no stubs of tails"
 
 
-def test_version_2_leg_labels_reach_up_the_body_as_on_the_real_meshes():
+def test_version_2_leg_labels_reach_up_the_body_as_on_the_real_meshes_and_version_3_as_version_1():
     for i in range(12):
-        for version, lo, hi in ((1, 0.2, 0.42), (2, 0.42, 0.8)):
+        for version, lo, hi in ((1, 0.2, 0.42), (2, 0.42, 0.8), (3, 0.2, 0.42)):
             s = make_shape("animal", i, 2048, 0, version=version)
             body_y, leg_y = s.points[s.labels == 0, 1], s.points[s.labels == 2, 1]
             up = (np.percentile(leg_y, 99) - body_y.min()) / np.ptp(body_y)  # transfer_causes' statistic
