@@ -10,17 +10,20 @@ imports torch (seconds), which --help, --version and usage errors do without.
 
 from __future__ import annotations
 
+import argparse
 import os
 import shlex
 import sys
 import time
 from pathlib import Path
 
-from .files import (LOCK_FILE, MANIFEST, check_distinct_outputs, check_outputs_spare_inputs, output_lock)
+from .files import (LOCK_FILE, MANIFEST, MESH_FORMATS, check_distinct_outputs, check_outputs_spare_inputs,
+                     output_lock)
 
 __all__ = ["UserError", "BAR_DELAY", "SUMMARY_FILE", "bars", "check_sizes", "check_outputs", "hold_folder",
            "check_out_dir", "record", "Recording", "check_input", "check_input_folder", "check_shape_file",
-           "load_shape", "model_points", "resolved_model"]
+           "load_shape", "model_points", "resolved_model", "load_network", "threads_type", "int_at_least", "positive_int",
+           "non_negative_int", "threshold_type", "growth_type", "mesh_formats_type", "part_names_type"]
 
 
 class UserError(Exception):
@@ -190,3 +193,87 @@ def resolved_model(name_or_path: str) -> Path:
     from .applications import resolve_checkpoint  # imports torch: start-up time
 
     return resolve_checkpoint(name_or_path)
+
+
+# ------------------------------------------------------------------ argument types and the network argument
+
+
+def threads_type(value: str):
+    """--threads: "auto" or a positive integer."""
+    if value == "auto":
+        return value
+    try:
+        number = int(value)
+    except ValueError:
+        number = 0
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of threads or auto, got {value!r}")
+    return number
+
+
+def int_at_least(minimum: int):
+    """An argparse type: an integer >= minimum (0 or 1), with a one-line message otherwise."""
+    rule = "a positive integer" if minimum == 1 else "a non-negative integer"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {rule}, got {text!r}")
+        return value
+
+    return parse
+
+
+positive_int = int_at_least(1)
+non_negative_int = int_at_least(0)
+
+
+def threshold_type(text: str) -> float:
+    """An argparse type: a number in [0, 1) (an existence threshold)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}") from None
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1), got {text!r}")
+    return value
+
+
+def growth_type(text: str) -> float:
+    """An argparse type: the largest growth of :func:`cuboidlib.merging.merge_split_cuboids`, a number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def mesh_formats_type(text: str) -> tuple[str, ...]:
+    """An argparse type: comma-separated mesh formats, each one of ``MESH_FORMATS``, without repeats."""
+    chosen = tuple(f.strip().lower().lstrip(".") for f in text.split(","))
+    unknown = [f for f in chosen if f not in MESH_FORMATS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown mesh format {unknown[0]!r}; expected a comma-separated "
+                                         f"list of {', '.join(MESH_FORMATS)}")
+    return tuple(dict.fromkeys(chosen))
+
+
+def part_names_type(text: str) -> tuple[str, ...]:
+    """An argparse type: comma-separated non-empty part names."""
+    names = tuple(n.strip() for n in text.split(","))
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"expected comma-separated non-empty names, got {text!r}")
+    return names
+
+
+def load_network(checkpoint: str, device: str):
+    """(model, checkpoint state, path) of a checkpoint file, run folder or committed name, on ``device``."""
+    from .applications import load_trained_model  # imports torch: start-up time
+    from .config import resolve_device  # imports torch: start-up time
+
+    return load_trained_model(checkpoint, resolve_device(device))

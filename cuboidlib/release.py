@@ -38,7 +38,7 @@ from .evaluation import evaluate_baseline, evaluate_model, format_table
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
 from .dataset import load_splits
-from .files import read_json
+from .files import read_json, write_text_atomic
 from .train import SELECTIONS, TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
@@ -311,7 +311,7 @@ def publish_run(
     }
     if started is not None:
         card["command_seconds"] = round(time.time() - started, 1)
-    card_path(dest).write_text(json.dumps(card, indent=2) + "\n")
+    write_text_atomic(card_path(dest), json.dumps(card, indent=2) + "\n")
     return card
 
 
@@ -370,7 +370,8 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     """A Markdown table of released checkpoints, one row per card, for README files.
 
     Columns: checkpoint (the file's name), M, training (steps, minutes, "a + b" for two stages, and the whole
-    command's minutes when the card records them; processes), test shapes, then network / baseline Chamfer
+    command's minutes when the card records them; processes), test shapes (and their generator version, 1 for a
+    config without one), then network / baseline Chamfer
     distance x 1000 (the card's first convention), normal consistency and mIoU %, and the network's N_AC and box
     distance ("-" on a card scored before the box distance existed).
 
@@ -380,7 +381,7 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
     Returns:
         The table, lines joined by newlines.
     """
-    rows = ["| checkpoint | M | training | test shapes | CD x1000: network / baseline | NC: network / baseline "
+    rows = ["| checkpoint | M | training | test shapes, generator | CD x1000: network / baseline | NC: network / baseline "
             "| mIoU %: network / baseline | N_AC | box distance |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for checkpoint in checkpoints:
@@ -397,7 +398,7 @@ def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
         rows.append(
             f"| `{Path(checkpoint).with_suffix('.pt').name}` | {card['config']['model']['num_cuboids']} "
             f"| {steps} steps, {minutes} min{whole}, {processes} process{'es' if processes > 1 else ''} "
-            f"| {card['test']['n_shapes']} "
+            f"| {card['test']['n_shapes']}, version {card['config'].get('generator_version', 1)} "
             f"| {cd[0]:.2f} / {cd[1]:.2f} | {network['normal_consistency']:.3f} / {baseline['normal_consistency']:.3f} "
             f"| {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} | {network['n_ac']:.2f} | {box} |"
         )

@@ -112,8 +112,9 @@ def markdown(docs: list[dict]) -> str:
                     continue
                 shown.add((category, version))
                 s = scores[label]
-                where = Path(s["network"])  # a candidate's folder names it (results/generator_v2/<name>/best.pt)
-                name = label if label == "committed" else f"{label} ({(where.parent if where.suffix else where).name})"
+                where = Path(s["network"])  # a candidate's folders name it (results/generator_v2/<name>/best.pt)
+                where = where.parent if where.suffix else where
+                name = "committed, version 1" if label == "committed" else f"{label} ({where.parent.name}/{where.name})"
                 ratio = "1" if label == "committed" else f"{v['real_chamfer_median_ratio']:.2f}"
                 replaces = "" if label == "committed" else ("yes" if v["replaces"] else "no")
                 lines.append(f"| {category} | {name} | {version} | {s['v1']['miou']:.1f} | {s[new]['miou']:.1f} | "

@@ -50,7 +50,8 @@ def test_a_candidate_must_name_a_category_and_an_existing_run(gate, bad, capsys)
 
 def test_the_readme_table_is_the_committed_gate_runs(gate, capsys):
     results = ROOT / "experiments" / "results"
-    files = ["generator_v2_animal.json", "generator_v2_animal_seed2.json", "generator_v2_airplane.json"]
+    files = ["generator_v2_animal.json", "generator_v2_animal_seed2.json", "generator_v3_animal.json",
+             "generator_v2_airplane.json"]
     assert gate.main(["--table", *(str(results / f) for f in files)]) == 0
     table = capsys.readouterr().out.strip()
     readme = (ROOT / "experiments" / "README.md").read_text()
@@ -58,5 +59,6 @@ def test_the_readme_table_is_the_committed_gate_runs(gate, capsys):
     assert block.strip() == table
     rows = [line for line in table.splitlines() if "| candidate" in line]
     verdicts = {r.split("|")[2].strip(): r.rstrip(" |").rsplit("|", 1)[1].strip() for r in rows}
-    assert verdicts == {"candidate (animal_seed1)": "no", "candidate (animal_seed2)": "no", "candidate (airplane)": "yes"}, \
-        "the verdicts the README states: both animal seeds fail, the airplane passes"
+    assert verdicts == {"candidate (generator_v2/animal_seed1)": "no", "candidate (generator_v2/animal_seed2)": "no",
+                        "candidate (generator_v3/animal)": "no", "candidate (generator_v2/airplane)": "yes"}, \
+        "the verdicts the README states: every animal fails, the airplane passes"

@@ -31,7 +31,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
     ("release",),                                             # a trained run -> a committed network and card
     ("cli_common",),                                          # what the commands share: errors, inputs, outputs
-    ("cli_shapes",),                                          # the command line's runs over shapes (fit, abstract)
+    ("cli_shapes", "cli_train"),                              # the command line's runs over shapes; its network commands
     ("cli",),                                                 # the command-line tool
     ("__main__",),                                            # python -m cuboidlib
 )
