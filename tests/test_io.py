@@ -282,7 +282,7 @@ def test_samples_command(tmp_path, capsys):
     assert main(["samples", "--out", str(tmp_path), "--points", "0"]) == 2
     assert "--per-category and --points must be positive" in capsys.readouterr().err
     args = ["samples", "--out", str(tmp_path / "v2"), "--per-category", "2", "--points", "64", "--figure-only",
-            "--categories", "airplane,animal"]
+            "--generator-version", "2", "--categories", "airplane,animal"]
     assert main(args) == 0 and [p.name for p in (tmp_path / "v2").iterdir()] == ["samples_v2.png"]
     assert main([*args[:-1], "sofa"]) == 2 and "--categories: expected some of" in capsys.readouterr().err
     assert main([*args, "--no-figure"]) == 2 and "leave nothing to write" in capsys.readouterr().err
