@@ -687,13 +687,13 @@ def test_damaged_glb_files_and_checkpoints_are_named_clearly(tmp_path):
 
 
 def test_an_interrupted_training_says_where_resume_continues(tmp_path, monkeypatch, capsys):
-    import cuboidlib.cli
+    import cuboidlib.cli_train
     from cuboidlib.checkpoint import save_checkpoint
 
     def interrupted(args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cuboidlib.cli, "_cmd_train", interrupted)
+    monkeypatch.setattr(cuboidlib.cli_train, "_cmd_train", interrupted)
     out = tmp_path / "run"
     assert main(["train", "--out", str(out)]) == 130
     assert "no checkpoint was written" in capsys.readouterr().err
