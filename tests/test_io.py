@@ -270,7 +270,7 @@ def test_committed_data_samples_are_readable():
         # (the concatenated mesh also has faces buried inside other parts, so not 100 %)
         assert (from_mesh.labels == pc.labels[nearest]).mean() > 0.75, "mesh face labels match the points"
     assert (DATA_SAMPLES / "samples.png").is_file() and (DATA_SAMPLES / "README.md").is_file()
-    assert (DATA_SAMPLES / "samples_v2.png").is_file()
+    assert (DATA_SAMPLES / "samples_v2.png").is_file() and (DATA_SAMPLES / "samples_v3.png").is_file()
 
 
 def test_samples_command(tmp_path, capsys):
