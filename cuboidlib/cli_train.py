@@ -49,7 +49,7 @@ def add_samples_command(sub) -> None:
 
 def _cmd_samples(args) -> int:
     from ._checks import MAX_SEED, MAX_SHAPE_POINTS, MAX_SHAPES  # imports torch: start-up time
-    from .io import data_sample_files, write_data_samples  # imports torch: start-up time
+    from .sample_files import data_sample_files, write_data_samples  # imports torch: start-up time
     from .shapes import CATEGORIES  # imports torch: start-up time
 
     if args.per_category < 1 or args.points < 1 or args.seed < 0:

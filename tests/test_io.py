@@ -244,8 +244,11 @@ def test_bad_inputs_name_the_file_and_the_problem(tmp_path, chair):
 
 
 def test_write_data_samples(tmp_path):
-    written = io.write_data_samples(tmp_path, n_per_category=1, n_points=128, figure=False)
-    assert (tmp_path / "index.csv") in written
+    from cuboidlib.sample_files import write_data_samples
+
+    written = write_data_samples(tmp_path, n_per_category=1, n_points=128, figure=False)
+    assert (tmp_path / "index.csv") in written and all(path.is_file() for path in written)
+    assert sorted(p for p in tmp_path.rglob("*") if p.is_file()) == sorted(written), "no temporary file left"
     with open(tmp_path / "index.csv") as f:
         rows = list(csv.DictReader(f))
     assert [r["category"] for r in rows] == ["chair", "table", "airplane", "animal"]
