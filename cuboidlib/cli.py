@@ -372,7 +372,8 @@ def _add_view_command(sub) -> None:
 
 
 def _cmd_view(args) -> int:
-    from .export import read_manifest, write_view_html  # imports torch: start-up time
+    from .export import read_manifest  # imports torch: start-up time
+    from .export_view import write_view_html  # imports torch: start-up time
 
     manifest = read_manifest(args.result) if Path(args.result).is_dir() else None
     if manifest is not None and not manifest.get("complete", True) and not args.quiet:

@@ -374,12 +374,12 @@ def test_bad_inputs_are_one_line_errors(tmp_path, checkpoint, capsys):
 
 
 def test_unexpected_errors_are_one_line_with_a_hint(tmp_path, monkeypatch, capsys):
-    import cuboidlib.export
+    import cuboidlib.export_view
 
     def broken(*args, **kwargs):
         raise RuntimeError("something deep\ninside failed")
 
-    monkeypatch.setattr(cuboidlib.export, "write_view_html", broken)
+    monkeypatch.setattr(cuboidlib.export_view, "write_view_html", broken)
     assert main(["view", str(tmp_path)]) == 1
     assert_one_line_error(capsys.readouterr().err, "RuntimeError: something deep inside failed",
                           "rerun with --traceback")

@@ -25,8 +25,8 @@ from cuboidlib.export import (
     write_cuboid_mesh,
     write_cuboids_json,
     write_segmented_point_cloud,
-    write_view_html,
 )
+from cuboidlib.export_view import write_view_html
 from cuboidlib.geometry import Cuboids, quaternion_to_rotation_matrix, random_quaternions
 from cuboidlib.io import read_point_cloud
 from cuboidlib.metrics import ChamferConvention

@@ -1007,7 +1007,7 @@ def test_page_links_never_carry_markup_from_a_name_property(workspace, name):
     from html import unescape
     from urllib.parse import unquote
 
-    from cuboidlib.export import write_view_html
+    from cuboidlib.export_view import write_view_html
 
     two = workspace / "two_results"  # more results than a page holds: pages linked to each other
     if not two.exists():

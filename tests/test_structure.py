@@ -25,6 +25,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast", "frames"),  # Eq. (5), scores, shapes, frames
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset", "sample_files"),  # weights, result files, the 2D toy, data sets, samples
+    ("export_view",),                                         # HTML views of result files
     ("results", "runs"),                                      # the result types; a run's bookkeeping
     ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, the count
     ("fitting", "evaluation", "network_check"),               # the per-shape fit, the test-split scores, the network check
