@@ -103,7 +103,7 @@ def add_train_command(sub) -> None:
     p.add_argument("--data-seed", type=int, help="seed of the collection")
     p.add_argument("--generator-version", type=int, choices=GENERATOR_VERSIONS,
                    help=f"procedural generator (default: the newest, {GENERATOR_VERSION}; a --config file without generator_version: 1, "
-                   "the shapes of the committed networks)")
+                   "the shapes of the chair, table and animal networks)")
     p.add_argument("--split", type=float, nargs=3, dest="split_fractions", metavar=("TRAIN", "VAL", "TEST"),
                    help="split fractions (default 0.7 0.1 0.2)")
     p.add_argument("--split-seed", type=int, help="seed of the train/validation/test split")

@@ -10,11 +10,12 @@ comes from a generator seeded with (seed, category, i), so a prefix of a larger 
 smaller one; collections are cached as npz, keyed by their arguments and the generator's version.
 
 **Versions.** ``version`` (of :func:`build_parts`, :func:`make_shape`, :func:`make_collection`) picks the
-generator: 1 makes the shapes that the committed networks were trained on, bit for bit, for ever; 2 adds what
-the real meshes of ``benchmarks/real_meshes/`` show and version 1 lacks (``experiments/transfer_causes.py``):
-light aircraft and fixed landing gear (:mod:`cuboidlib.shapes_airplane`), thighs labelled leg, posed tails and
-wider bodies (:mod:`cuboidlib.shapes_animal`); 3 (:data:`GENERATOR_VERSION`, the default) is version 2 with the
-animals' thighs left out. Chairs and tables are the same in every version, airplanes in versions 2 and 3.
+generator, each bit for bit for ever: 1 makes the shapes of the committed chair, table and animal networks; 2,
+those of the airplane network, adds what the real meshes of ``benchmarks/real_meshes/`` show and version 1 lacks
+(``experiments/transfer_causes.py``): light aircraft and fixed landing gear (:mod:`cuboidlib.shapes_airplane`),
+thighs labelled leg, posed tails and wider bodies (:mod:`cuboidlib.shapes_animal`); 3 (:data:`GENERATOR_VERSION`,
+the default) is version 2 with the animals' thighs left out. Chairs and tables are the same in every version,
+airplanes in versions 2 and 3.
 """
 
 from __future__ import annotations
@@ -120,8 +121,9 @@ def check_generator_version(version) -> int:
         ValueError: another value (a bool, a float, an unknown number).
     """
     if isinstance(version, bool) or not isinstance(version, (int, np.integer)) or int(version) not in GENERATOR_VERSIONS:
-        raise ValueError(f"generator version must be one of {GENERATOR_VERSIONS} (1: the shapes the committed networks "
-                         f"were trained on; {GENERATOR_VERSION}: the newest), got {version!r}")
+        raise ValueError(f"generator version must be one of {GENERATOR_VERSIONS} (1: the shapes of the committed chair, "
+                         f"table and animal networks; 2: the airplane network's; {GENERATOR_VERSION}: the newest), "
+                         f"got {version!r}")
     return int(version)
 
 
