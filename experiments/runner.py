@@ -73,9 +73,9 @@ except ImportError:  # pragma: no cover
 import torch
 
 from cuboidlib.checkpoint import load_model
+from cuboidlib.cli_common import positive_int
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
 from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
-from cuboidlib.applications import checkpoint_dir
 from cuboidlib.evaluation import evaluate_baseline, predict_cuboids, score_cuboids
 from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
@@ -845,16 +845,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
 def categories_option(allowed: Sequence[str]):
     """An argparse type for a comma-separated list of categories out of ``allowed``."""
 
@@ -924,16 +914,16 @@ class Experiment:
         p.add_argument("--quick", action="store_true",
                        help="tiny network, 12 shapes, 1/8 of the points, 2 steps, 1 seed: runs in seconds, "
                             "numbers meaningless (for tests)")
-        p.add_argument("--steps", type=_positive_int,
+        p.add_argument("--steps", type=positive_int,
                        help=f"training steps per run (default {self.default_steps}; quick: 2)")
-        p.add_argument("--shapes", type=_positive_int,
+        p.add_argument("--shapes", type=positive_int,
                        help=f"shapes per collection (default {COURSE_SCALE['shapes_per_category']}; quick: 12)")
-        p.add_argument("--seeds", type=_positive_int,
+        p.add_argument("--seeds", type=positive_int,
                        help=f"training seeds 0..N-1 per configuration (default {self.default_seeds}; quick: 1)")
-        p.add_argument("--batch-size", type=_positive_int,
+        p.add_argument("--batch-size", type=positive_int,
                        help=f"shapes per training step (default {EXPERIMENT_BATCH_SIZE}; the checkpoints: 16; quick: 4); the "
                             "time per step is proportional to it")
-        p.add_argument("--jobs", type=_positive_int, default=2,
+        p.add_argument("--jobs", type=positive_int, default=2,
                        help="runs at a time, each in its own process with one torch thread (default 2)")
         p.add_argument("--out", default=str(RESULTS_DIR), help="folder of the results (default experiments/results)")
         p.add_argument("--runs-dir", default=str(RUNS_DIR),
