@@ -18,7 +18,7 @@ import time
 import torch
 
 from cuboidlib.distance import chamfer_distance_to_cuboids, nearest_surface_distance, point_to_cuboid_distance
-from cuboidlib.geometry import random_quaternions
+from cuboidlib.rotations import random_quaternions
 
 VARIANTS = {
     "p2c": ("point_to_cuboid_distance, sigma_s=0.05", lambda x: point_to_cuboid_distance(*x["p2c"], sigma_s=0.05)),

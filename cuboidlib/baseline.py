@@ -10,8 +10,9 @@ from __future__ import annotations
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from .geometry import Cuboids
 from .results import AbstractionBatch
-from .geometry import Cuboids, rotation_matrix_to_quaternion
+from .rotations import rotation_matrix_to_quaternion
 
 __all__ = ["kmeans", "oriented_bounding_box", "fit_cluster_boxes"]
 

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import torch
 
-from .geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .metrics import ChamferConvention, cuboid_chamfer_distance
+from .rotations import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 __all__ = ["CountConfig", "CountRecord", "choose_count"]
 

@@ -12,16 +12,16 @@ from __future__ import annotations
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape, check_unit_vectors
-from .neighbors import nearest_index, nearest_indices
 from .geometry import (
     TensorLike,
     _as_exists_mask,
     _directions_to_local,
     _to_local,
     _validate_points_and_cuboids,
-    quaternion_to_rotation_matrix,
     sample_cuboid_surfaces,
 )
+from .neighbors import nearest_index, nearest_indices
+from .rotations import quaternion_to_rotation_matrix
 
 __all__ = [
     "point_to_cuboid_distance",

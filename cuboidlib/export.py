@@ -60,8 +60,9 @@ import torch
 import trimesh
 
 from .files import LOCK_FILE, MANIFEST, MESH_FORMATS, RESULT_FORMAT, atomic_path, read_json, write_text_atomic
-from .geometry import Cuboids, cuboids_to_trimesh, quaternion_to_rotation_matrix
+from .geometry import Cuboids, cuboids_to_trimesh
 from .metrics import ChamferConvention
+from .rotations import quaternion_to_rotation_matrix
 from .viz import UNLABELLED, cuboid_color
 
 __all__ = [

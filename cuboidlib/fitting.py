@@ -26,12 +26,11 @@ from tqdm import tqdm
 
 from ._checks import (MAX_CUBOIDS, MAX_FIT_STEPS, MAX_RESTARTS, MAX_SHAPE_POINTS, as_float_tensor, check_finite,
                       check_seed, check_shape, check_size, check_unit_vectors)
-from .results import AbstractionBatch
 from .baseline import kmeans
 from .config import torch_threads
 from .counting import CountConfig, CountRecord, choose_count
 from .distance import nearest_surface_distance, point_to_cuboid_distance
-from .geometry import Cuboids, sample_cuboid_surfaces, standardize_quaternion
+from .geometry import Cuboids, sample_cuboid_surfaces
 from .losses import (
     LossConfig,
     allocation_portions,
@@ -42,6 +41,8 @@ from .losses import (
 )
 from .neighbors import nearest_indices
 from .normalization import normalize
+from .results import AbstractionBatch
+from .rotations import standardize_quaternion
 
 __all__ = ["FitConfig", "FitResult", "kmeans", "initial_cuboids", "fit_cuboids", "tighten_cuboids"]
 

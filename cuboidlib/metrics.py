@@ -19,8 +19,9 @@ from dataclasses import dataclass
 import torch
 
 from ._checks import as_float_tensor, check_finite, check_shape
+from .geometry import sample_cuboid_surfaces, validate_cuboids
 from .neighbors import nearest_index, nearest_indices
-from .geometry import quaternion_to_rotation_matrix, sample_cuboid_surfaces, validate_cuboids
+from .rotations import quaternion_to_rotation_matrix
 
 __all__ = [
     "ChamferConvention",

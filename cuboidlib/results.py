@@ -22,8 +22,9 @@ from .export import (
     write_segmented_point_cloud,
 )
 from .frames import check_rotation
-from .geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from .geometry import Cuboids
 from .metrics import ChamferConvention
+from .rotations import quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from .viz import plot_cuboids_plotly
 
 __all__ = ["AbstractionBatch", "Abstraction", "result_files"]

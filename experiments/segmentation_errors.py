@@ -51,8 +51,9 @@ from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import label_transfer_split, predict_cuboids
 from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
-from cuboidlib.geometry import Cuboids, quaternion_to_rotation_matrix
+from cuboidlib.geometry import Cuboids
 from cuboidlib.metrics import mean_iou, transfer_part_labels
+from cuboidlib.rotations import quaternion_to_rotation_matrix
 from cuboidlib.shapes import make_collection
 from cuboidlib.train import TrainConfig
 

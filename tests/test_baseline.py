@@ -2,7 +2,8 @@ import pytest
 import torch
 
 from cuboidlib.baseline import fit_cluster_boxes, kmeans, oriented_bounding_box
-from cuboidlib.geometry import quaternion_to_rotation_matrix, random_quaternions, sample_cuboid_surfaces
+from cuboidlib.geometry import sample_cuboid_surfaces
+from cuboidlib.rotations import quaternion_to_rotation_matrix, random_quaternions
 
 
 def test_kmeans_separates_well_separated_blobs_and_is_deterministic():

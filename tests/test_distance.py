@@ -13,12 +13,8 @@ from cuboidlib.distance import (
     nearest_surface_distance,
     point_to_cuboid_distance,
 )
-from cuboidlib.geometry import (
-    quaternion_multiply,
-    quaternion_to_rotation_matrix,
-    random_quaternions,
-    sample_cuboid_surfaces,
-)
+from cuboidlib.geometry import sample_cuboid_surfaces
+from cuboidlib.rotations import quaternion_multiply, quaternion_to_rotation_matrix, random_quaternions
 
 
 def gen(seed=0):

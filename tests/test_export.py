@@ -27,9 +27,10 @@ from cuboidlib.export import (
     write_segmented_point_cloud,
 )
 from cuboidlib.export_view import write_view_html
-from cuboidlib.geometry import Cuboids, quaternion_to_rotation_matrix, random_quaternions
+from cuboidlib.geometry import Cuboids
 from cuboidlib.io import read_point_cloud
 from cuboidlib.metrics import ChamferConvention
+from cuboidlib.rotations import quaternion_to_rotation_matrix, random_quaternions
 from cuboidlib.viz import PALETTE, UNLABELLED
 
 

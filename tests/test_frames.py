@@ -9,8 +9,9 @@ from cuboidlib.abstraction import Abstraction
 from cuboidlib.export import read_cuboids_json
 from cuboidlib.frames import (Mirror, check_rotation, flat_ups, frame_rotation, ground_ups, is_axis_frame,
                               mirror_normal, search_frames, turn, yawed_frames)
-from cuboidlib.geometry import Cuboids, cuboid_corners, quaternion_to_rotation_matrix, random_quaternions
+from cuboidlib.geometry import Cuboids, cuboid_corners
 from cuboidlib.metrics import ChamferConvention, cuboid_chamfer_distance
+from cuboidlib.rotations import quaternion_to_rotation_matrix, random_quaternions
 from cuboidlib.shapes import make_shape
 
 

@@ -5,9 +5,10 @@ import math
 import pytest
 import torch
 
-from cuboidlib.geometry import Cuboids, quaternion_multiply, quaternion_to_rotation_matrix, random_quaternions
+from cuboidlib.geometry import Cuboids
 from cuboidlib.merging import merge_growth, merge_split_cuboids
 from cuboidlib.results import AbstractionBatch
+from cuboidlib.rotations import quaternion_multiply, quaternion_to_rotation_matrix, random_quaternions
 
 F64 = dict(dtype=torch.float64)
 #: a leg (half sizes 0.02, 0.1, 0.02) cut in two halves end to end, and a whole leg 0.5 away along x

@@ -17,7 +17,7 @@ from cuboidlib.metrics import (
     segment_box_distance,
     transfer_part_labels,
 )
-from cuboidlib.geometry import quaternion_multiply, quaternion_to_rotation_matrix, random_quaternions
+from cuboidlib.rotations import quaternion_multiply, quaternion_to_rotation_matrix, random_quaternions
 
 ID = torch.tensor([[[1.0, 0.0, 0.0, 0.0]]])
 

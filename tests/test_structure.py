@@ -19,6 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "cuboidlib"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__", "files"),                                    # version, reading and writing files
     ("_checks", "config", "kernels", "file_tables"),          # plumbing: checks, configs, C++, text and PLY tables
+    ("rotations",),                                           # quaternions and rotation matrices
     ("neighbors", "geometry", "normalization", "solids", "mesh_files"),  # kNN, cuboids, the unit frame, solids, meshes
     ("shapes_common",),                                       # what the procedural categories build with
     ("shapes_chair", "shapes_table", "shapes_airplane", "shapes_animal"),  # one procedural category each
