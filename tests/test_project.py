@@ -165,7 +165,9 @@ def test_notebook_has_the_course_form(nb_path):
     assert any(h.lstrip().startswith("## exercises") for h in headings), f"{nb_path.name}: no '## Exercises' section"
     code = "\n".join(_source(c) for c in cells if c["cell_type"] == "code")
     assert "sys.path" not in code, f"{nb_path.name}: import cuboidlib as an installed package, not via sys.path"
-    assert "# NBVAL_CHECK_OUTPUT" in code, f"{nb_path.name}: no cell's output is checked by nbval"
+    checked = [c for c in cells if "nbval-check-output" in c.get("metadata", {}).get("tags", [])]
+    assert checked, f"{nb_path.name}: no cell is tagged nbval-check-output, so nbval checks no printed output"
+    assert "NBVAL_" not in code, f"{nb_path.name}: mark checked cells with the nbval-check-output tag, not a comment"
     assert re.search(r"^\s*assert ", code, re.M), f"{nb_path.name}: the lesson's claims are not checked by asserts"
 
 
