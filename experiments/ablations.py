@@ -13,7 +13,7 @@ same rule to Table 5's 15-minute runs (``results/table5_compactness_15min.json``
 
 A test's verdict is "holds", "fails", "unresolved at three seeds" (the seeds overlap) or, while some of its runs
 are missing, "unresolved: k of n runs finished". Table 4's normal consistency is measured both ways (``nc_both``),
-as lesson 07 reads it. Records written before the rename of ``flatness`` are read with today's metric names
+as lesson 08 reads it. Records written before the rename of ``flatness`` are read with today's metric names
 (:func:`summaries.result_rows`).
 """
 
