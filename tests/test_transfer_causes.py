@@ -1,4 +1,4 @@
-"""Tests of experiments/transfer_causes.py: its perturbations do what they say, its label-transfer recount is the
+"""Tests of experiments/transfer_causes.py and its shape_changes.py: the perturbations do what they say, its label-transfer recount is the
 library's, its statistics read the procedural shapes right, and the README shows the table of its results."""
 
 from __future__ import annotations
@@ -39,74 +39,80 @@ def tc():
     sys.modules.pop(spec.name, None)
 
 
+@pytest.fixture(scope="module")
+def sc(tc):
+    """experiments/shape_changes.py, as transfer_causes imported it (one copy of its classes)."""
+    return sys.modules["shape_changes"]
+
+
 # The script perturbs the committed networks' test shapes: generator version 1 (the version their configs mean).
 
 
-def _change(tc, name):
-    return next(c for c in tc.CHANGES if c.name == name)
+def _change(sc, name):
+    return next(c for c in sc.CHANGES if c.name == name)
 
 
 def _own_distance(solids, points, index):
     return np.array([abs(float(solids[i].sdf(p[None])[0])) for p, i in zip(points, index)])
 
 
-def test_every_face_samples_the_faces_inside_the_union_too(tc):
+def test_every_face_samples_the_faces_inside_the_union_too(sc):
     shape = make_shape("airplane", 3, 512, 0, version=1)  # wing roots and the fin's root lie inside the fuselage
     rng = np.random.default_rng(0)
-    p, nn, idx = tc.sample_every_face(shape.parts, 2000, rng)
+    p, nn, idx = sc.sample_every_face(shape.parts, 2000, rng)
     assert p.shape == (2000, 3) and np.allclose(np.linalg.norm(nn, axis=1), 1, atol=1e-6)
     assert _own_distance(shape.parts, p, idx).max() < 1e-6  # on its own solid's surface
     inside = union_sdf([s for s in shape.parts], p) < -1e-4  # ... and some of them inside another solid
     assert 0.02 < inside.mean() < 0.5
-    out = _change(tc, "every_face").apply(shape, rng)
+    out = _change(sc, "every_face").apply(shape, rng)
     assert (out.labels == np.array([s.label for s in shape.parts])[out.instances]).all()
     assert out.reference is shape.points
 
 
 @pytest.mark.parametrize("name", ["resampled", "density_ramp4", "density_triangles", "nose_propeller",
                                   "wing_span1.3", "tail_x1.4"])
-def test_resampling_changes_keep_to_the_outer_surface(tc, name):
+def test_resampling_changes_keep_to_the_outer_surface(sc, name):
     shape = make_shape("airplane", 5, 256, 0, version=1)
-    out = _change(tc, name).apply(shape, np.random.default_rng(1))
+    out = _change(sc, name).apply(shape, np.random.default_rng(1))
     assert out.points.shape == (256, 3) and out.labels.shape == (256,) and out.instances.shape == (256,)
     if name in ("resampled", "density_ramp4", "density_triangles"):
         assert np.abs(union_sdf(shape.parts, out.points)).max() < 1e-6
         assert (out.labels == np.array([s.label for s in shape.parts])[out.instances]).all()
 
 
-def test_density_ramp_is_four_times_denser_at_one_end(tc):
+def test_density_ramp_is_four_times_denser_at_one_end(sc):
     shape = make_shape("table", 0, 256, 0)
     rng = np.random.default_rng(0)
     direction = np.random.default_rng(0).standard_normal(3)  # the first draw of the same generator: _ramp's direction
     direction /= np.linalg.norm(direction)
-    out = tc._thinned(shape.parts, 4000, rng, lambda p: 1.0 + 3.0 * (p @ direction - (p @ direction).min())
+    out = sc._thinned(shape.parts, 4000, rng, lambda p: 1.0 + 3.0 * (p @ direction - (p @ direction).min())
                       / np.ptp(p @ direction))
-    plain = tc._outer(shape.parts, 4000, np.random.default_rng(1)).points
+    plain = sc._outer(shape.parts, 4000, np.random.default_rng(1)).points
     t, t0 = out.points @ direction, plain @ direction
     lo, hi = np.quantile(t0, [0.25, 0.75])
     ratio = ((t > hi).mean() / (t0 > hi).mean()) / ((t < lo).mean() / (t0 < lo).mean())
     assert 2.0 < ratio < 4.5
 
 
-def test_stretch_keeps_normals_perpendicular_to_the_surface(tc):
+def test_stretch_keeps_normals_perpendicular_to_the_surface(sc):
     rng = np.random.default_rng(0)
     n = rng.standard_normal((50, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     t = np.cross(n, rng.standard_normal((50, 3)))  # tangents
     shape = make_shape("chair", 0, 50, 0)
     shape.normals = n
-    out = tc._stretch(1, 1.25)(shape, rng)
+    out = sc._stretch(1, 1.25)(shape, rng)
     a = np.diag([1.0, 1.25, 1.0])
     assert np.allclose(out.points, shape.points @ a.T) and np.allclose(out.reference, out.points)
     assert np.abs(np.einsum("ij,ij->i", out.normals, t @ a.T)).max() < 1e-9
     assert np.allclose(np.linalg.norm(out.normals, axis=1), 1)
 
 
-def test_tilt_turns_by_the_angle_either_way(tc):
+def test_tilt_turns_by_the_angle_either_way(sc):
     shape = make_shape("chair", 1, 64, 0)
     signs = set()
     for seed in range(8):
-        out = tc._tilt(tc.rotation_x, 10)(shape, np.random.default_rng(seed))
+        out = sc._tilt(sc.rotation_x, 10)(shape, np.random.default_rng(seed))
         r = np.linalg.lstsq(shape.points, out.points, rcond=None)[0].T
         angle = math.degrees(math.atan2(r[2, 1], r[1, 1]))
         assert abs(abs(angle) - 10) < 1e-6
@@ -114,9 +120,9 @@ def test_tilt_turns_by_the_angle_either_way(tc):
     assert signs == {True, False}
 
 
-def test_thigh_labels_move_body_points_over_the_hips_to_the_legs(tc):
+def test_thigh_labels_move_body_points_over_the_hips_to_the_legs(sc):
     shape = make_shape("animal", 2, 1024, 0, version=1)
-    out = tc._thigh_labels(shape, np.random.default_rng(0))
+    out = sc._thigh_labels(shape, np.random.default_rng(0))
     changed = out.labels != shape.labels
     assert changed.any() and (shape.labels[changed] == 0).all() and (out.labels[changed] == 2).all()
     assert out.points is shape.points and out.normals is shape.normals
@@ -125,11 +131,11 @@ def test_thigh_labels_move_body_points_over_the_hips_to_the_legs(tc):
 
 
 @pytest.mark.parametrize("angle", [60, -75, None])
-def test_turned_tail_points_at_its_angle_and_is_long_enough(tc, angle):
+def test_turned_tail_points_at_its_angle_and_is_long_enough(sc, angle):
     for index in range(6):
         shape = make_shape("animal", index, 256, 0, version=1)
         before = [s for s in shape.parts if s.label == 3]
-        parts = tc.turned_tail(shape.parts, angle, ground=-10.0)  # no ground in the way
+        parts = sc.turned_tail(shape.parts, angle, ground=-10.0)  # no ground in the way
         tails = [s for s in parts if s.label == 3]
         assert len(parts) == len(shape.parts) and np.allclose(tails[0].a, before[0].a)
         v, v0 = tails[-1].b - tails[0].a, before[-1].b - before[0].a
@@ -139,23 +145,23 @@ def test_turned_tail_points_at_its_angle_and_is_long_enough(tc, angle):
         assert np.linalg.norm(v) == pytest.approx(max(np.linalg.norm(v0), 0.3 * length))
         ground = float(shape.points[:, 1].min())
         low = min(min(c.a[1], c.b[1]) - c.radius for c in
-                  [s for s in tc.turned_tail(shape.parts, -75, ground) if s.label == 3])
+                  [s for s in sc.turned_tail(shape.parts, -75, ground) if s.label == 3])
         assert low >= ground - 1e-9
 
 
-def test_tail_hanging_is_seen(tc):
+def test_tail_hanging_is_seen(sc):
     for index in range(6):
         shape = make_shape("animal", index, 2048, 0, version=1)
-        out = _change(tc, "tail_hanging").apply(shape, np.random.default_rng(0))
+        out = _change(sc, "tail_hanging").apply(shape, np.random.default_rng(0))
         tail = out.points[out.labels == 3]
         root = next(s for s in shape.parts if s.label == 3).a
         assert len(tail) >= 5 and tail[:, 1].min() < root[1] - 0.1
 
 
-def test_nose_propeller_replaces_the_engines_at_the_nose(tc):
+def test_nose_propeller_replaces_the_engines_at_the_nose(tc, sc):
     shape = make_shape("airplane", 4, 1024, 0, version=1)  # this one has engines under its wings
     assert (shape.labels == 3).sum() > 20
-    out = tc._nose_propeller(shape, np.random.default_rng(0))
+    out = sc._nose_propeller(shape, np.random.default_rng(0))
     engine = out.points[out.labels == 3]
     assert len(engine) > 0 and engine[:, 2].min() > out.points[out.labels == 0][:, 2].max() - 0.05
     assert tc.engine_layout(out.points, out.labels) == "nose1"
@@ -227,41 +233,41 @@ def test_generator_stats_reads_both_versions(tc):
     assert len(lines) == 2 + sum(len(d["stats"]) for d in found.values()) + 1
 
 
-def test_buried_finds_the_points_inside_other_solids_and_the_share_is_thinned(tc):
+def test_buried_finds_the_points_inside_other_solids_and_the_share_is_thinned(sc):
     shape = make_shape("airplane", 3, 512, 0, version=1)
     rng = np.random.default_rng(0)
-    p, _, idx = tc.sample_every_face(shape.parts, 3000, rng)
-    inside = tc.buried(shape.parts, p, idx)
+    p, _, idx = sc.sample_every_face(shape.parts, 3000, rng)
+    inside = sc.buried(shape.parts, p, idx)
     assert np.array_equal(inside, union_sdf(shape.parts, p) < -1e-4)  # only another solid can hold a point inside
-    out = tc._every_face_at_share(shape, rng, 0.05)
+    out = sc._every_face_at_share(shape, rng, 0.05)
     assert out.inside.mean() == pytest.approx(0.05, abs=1 / 512)
-    assert np.array_equal(out.inside, tc.buried(shape.parts, out.points, out.instances))
-    full = tc._every_face_at_share(shape, rng, 1.0)  # at most what every-face sampling gives
+    assert np.array_equal(out.inside, sc.buried(shape.parts, out.points, out.instances))
+    full = sc._every_face_at_share(shape, rng, 1.0)  # at most what every-face sampling gives
     assert full.inside.mean() == pytest.approx(inside.mean(), abs=0.03)
 
 
-def test_enclosed_share_tells_interior_points_from_outer_ones(tc):
+def test_enclosed_share_tells_interior_points_from_outer_ones(tc, sc):
     shape = make_shape("airplane", 3, 2048, 0, version=1)
     rng = np.random.default_rng(0)
-    p, _, idx = tc.sample_every_face(shape.parts, 2048, rng)
-    inside = tc.buried(shape.parts, p, idx)
+    p, _, idx = sc.sample_every_face(shape.parts, 2048, rng)
+    inside = sc.buried(shape.parts, p, idx)
     order = np.argsort(~inside)  # interior points first: the estimate reads the first 512
     assert tc.enclosed_share(shape.points) < 0.03
     assert tc.enclosed_share(p[order]) > 0.15
 
 
-def test_landing_gear_adds_wheels_below_the_fuselage(tc):
+def test_landing_gear_adds_wheels_below_the_fuselage(sc):
     shape = make_shape("airplane", 1, 1024, 0, version=1)  # no engines
-    out = tc._landing_gear(shape, np.random.default_rng(0))
-    axis, _, rf = tc._fuselage(shape)
+    out = sc._landing_gear(shape, np.random.default_rng(0))
+    axis, _, rf = sc._fuselage(shape)
     below = out.points[:, 1] < axis[1] - 1.3 * rf
     assert below.sum() > 5 and (out.labels[below & (np.abs(out.points[:, 0] - axis[0]) < 2.5 * rf)] == 0).all()
 
 
-def test_thicker_fuselage_keeps_its_length(tc):
+def test_thicker_fuselage_keeps_its_length(sc):
     for index in range(4):  # capsule and cylinder fuselages
         shape = make_shape("airplane", index, 2048, 0, version=1)
-        out = tc._fuselage_scaled(1.4)(shape, np.random.default_rng(0))
+        out = sc._fuselage_scaled(1.4)(shape, np.random.default_rng(0))
         before, after = shape.points[shape.labels == 0], out.points[out.labels == 0]
         assert np.ptp(after[:, 2]) == pytest.approx(np.ptp(before[:, 2]), rel=0.03)
         assert np.ptp(after[:, 1]) == pytest.approx(1.4 * np.ptp(before[:, 1]), rel=0.08)
