@@ -104,7 +104,7 @@ def case_collection(folder: Path, n_shapes: int):
 
 def case_limits_refused(folder: Path, n: int):
     from cuboidlib.io import load_mesh_as_point_cloud
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     path = _mesh(folder, 3)
     start = time.perf_counter()

@@ -25,7 +25,7 @@ from cuboidlib.abstraction import abstract
 from cuboidlib.applications import load_trained_model
 from cuboidlib.dataset import load_splits
 from cuboidlib.thin_shapes import thin_structure_set
-from cuboidlib.train import course_config
+from cuboidlib.train_config import course_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_real_shapes import THIN_NETWORK  # noqa: E402

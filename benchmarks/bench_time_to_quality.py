@@ -81,7 +81,7 @@ def _validation_chamfer(checkpoint: Path) -> float:
     from cuboidlib.applications import load_trained_model
     from cuboidlib.dataset import load_splits
     from cuboidlib.evaluation import evaluate_model
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     model, state, _ = load_trained_model(str(checkpoint), "cpu")
     config = TrainConfig.from_dict(state["config"])

@@ -61,7 +61,7 @@ def worker(spec: dict) -> None:
 
     from cuboidlib.losses import total_loss
     from cuboidlib.model import CuboidAbstractionNet
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     from cuboidlib.runs import CoreShare
 

@@ -50,7 +50,7 @@ from cuboidlib.network_check import (LATENT_THRESHOLDS, calibrated_threshold, co
                                      network_verdict)
 from cuboidlib.normalization import normalize
 from cuboidlib.thin_shapes import thin_structure_set
-from cuboidlib.train import course_config
+from cuboidlib.train_config import course_config
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks" / "real_meshes"))

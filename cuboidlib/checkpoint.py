@@ -4,7 +4,7 @@ A checkpoint is a ``torch.save`` file of tensors, dicts, lists, tuples, strings,
 only, so it loads with ``torch.load(path, weights_only=True)``, which runs no code hidden in a file. Keys:
 
 * ``format`` (``"cuboidlib-checkpoint"``), ``format_version``, ``library_version``;
-* ``config``: the training config as JSON types (:class:`cuboidlib.train.TrainConfig`), whose ``"model"``
+* ``config``: the training config as JSON types (:class:`cuboidlib.train_config.TrainConfig`), whose ``"model"``
   entry is the :class:`~cuboidlib.model.ModelConfig` dict;
 * ``model``: the network's ``state_dict``;
 * training state (from the trainer): ``optimizer``, ``step``, ``epoch``, ``rng`` (generator states as uint8

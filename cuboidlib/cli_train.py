@@ -149,7 +149,7 @@ def _train_config_from_args(args):
     from .dataset import UNVERSIONED_GENERATOR  # imports torch: start-up time
     from .losses import LossConfig  # imports torch: start-up time
     from .model import ModelConfig  # imports torch: start-up time
-    from .train import TrainConfig  # imports torch: start-up time
+    from .train_config import TrainConfig  # imports torch: start-up time
 
     last = Path(args.out) / "last.pt"
     data = load_checkpoint(last)["config"] if args.resume and last.is_file() else TrainConfig().to_dict()
@@ -202,7 +202,7 @@ def _finetune_config_from_args(args, first):
     that both stages select the same shapes)."""
     from .config import read_config_file  # imports torch: start-up time
     from .dataset import DATA_FIELDS  # imports torch: start-up time
-    from .train import TrainConfig  # imports torch: start-up time
+    from .train_config import TrainConfig  # imports torch: start-up time
 
     file = read_config_file(args.finetune)
     inherited = {key: first.to_dict()[key] for key in DATA_FIELDS if key not in file}
@@ -335,7 +335,7 @@ def _cmd_evaluate(args) -> int:
     from .metrics import ChamferConvention  # imports torch: start-up time
     from .release import card_path  # imports torch: start-up time
     from .shapes import PART_NAMES  # imports torch: start-up time
-    from .train import TrainConfig  # imports torch: start-up time
+    from .train_config import TrainConfig  # imports torch: start-up time
 
     check_sizes(("--samples", args.samples, MAX_SHAPE_POINTS, 1), ("--batch-size", args.batch_size, MAX_SHAPES, 1),
                 ("--baseline-boxes", args.baseline_boxes, MAX_CUBOIDS, 1), ("--seed", args.seed, MAX_SEED, 0))

@@ -1,7 +1,7 @@
 """Plumbing shared by every configuration: the dict / JSON round trip, config files, seeds, devices, threads.
 
 :class:`ConfigDict` gives the configuration dataclasses (:class:`~cuboidlib.model.ModelConfig`,
-:class:`~cuboidlib.losses.LossConfig`, :class:`~cuboidlib.train.TrainConfig`) one ``to_dict`` /
+:class:`~cuboidlib.losses.LossConfig`, :class:`~cuboidlib.train_config.TrainConfig`) one ``to_dict`` /
 ``from_dict`` with one wording of its errors.
 
 Example::

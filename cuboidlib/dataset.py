@@ -49,7 +49,7 @@ __all__ = [
 
 @dataclass
 class DataConfig(ConfigDict):
-    """Which shapes a run reads and how they are split. :class:`~cuboidlib.train.TrainConfig` extends it.
+    """Which shapes a run reads and how they are split. :class:`~cuboidlib.train_config.TrainConfig` extends it.
 
     Args:
         category: procedural category ("chair", "table", "airplane", "animal"); with ``data_dir``, the

@@ -8,7 +8,7 @@ a JSON card beside it (``chair.json``) with the keys
 * ``machine``: CPUs, training processes, torch threads, torch and Python versions, device, ``gpu`` (or None);
 * ``training``: steps, selected step, seconds, the validation curve and its values at :data:`CURVE_MARKS`;
 * ``initialised_from`` (two-stage recipes): the first stage's checkpoint, config and training summary;
-* ``config``: the complete :class:`~cuboidlib.train.TrainConfig`;
+* ``config``: the complete :class:`~cuboidlib.train_config.TrainConfig`;
 * ``translation_head`` (centroid-centre networks only): the refit of :func:`fit_translation_head`;
 * ``test``: the metrics of network and baseline (:func:`cuboidlib.evaluation.evaluate_model`) and their table;
 * ``command_seconds`` (``cuboidlib train --release`` only): the wall time from the command's start to the card,
@@ -31,15 +31,15 @@ from pathlib import Path
 
 import torch
 
+from .applications import latent_statistics
 from .checkpoint import load_checkpoint, load_model, save_checkpoint
 from .config import resolve_device
-from .applications import latent_statistics
+from .dataset import load_splits
 from .evaluation import evaluate_baseline, evaluate_model, format_table
+from .files import read_json, write_text_atomic
 from .losses import allocation_weighted_centers
 from .model import CuboidAbstractionNet
-from .dataset import load_splits
-from .files import read_json, write_text_atomic
-from .train import SELECTIONS, TrainConfig
+from .train_config import SELECTIONS, TrainConfig
 
 __all__ = ["CARD_FORMAT", "CURVE_MARKS", "card_path", "fit_translation_head", "translation_head_error", "git_commit",
            "publish_run", "add_latent_statistics", "read_card", "cards_markdown", "training_curve", "curve_marks"]

@@ -40,10 +40,10 @@ from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import predict_cuboids
 from cuboidlib.files import write_text_atomic
-from cuboidlib.metrics import transfer_part_labels
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.geometry import Cuboids
-from cuboidlib.train import TrainConfig
+from cuboidlib.metrics import transfer_part_labels
+from cuboidlib.train_config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE = "engine"

@@ -80,7 +80,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
     from cuboidlib.applications import abstract_shapes
     from cuboidlib.checkpoint import load_model
     from cuboidlib.dataset import load_splits
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
     from cuboidlib.viz import plot_cuboids_matplotlib
 
     shown = [r for r in records if r["status"] == "ok" and r["key"]["seed"] == scale.seeds[0]]

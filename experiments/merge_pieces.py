@@ -33,7 +33,7 @@ from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import predict_cuboids, score_cuboids
 from cuboidlib.files import write_text_atomic
 from cuboidlib.merging import merge_split_cuboids
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 CATEGORIES = ("chair", "table", "airplane", "animal")

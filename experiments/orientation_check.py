@@ -33,7 +33,7 @@ from cuboidlib.abstraction import ORIENTATION_RATIO, frame_rotation, up_axis_sco
 from cuboidlib.dataset import load_splits
 from cuboidlib.files import write_text_atomic
 from cuboidlib.release import read_card
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 CATEGORIES = ("chair", "table", "airplane", "animal")

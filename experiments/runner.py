@@ -72,20 +72,21 @@ except ImportError:  # pragma: no cover
 
 import torch
 
+from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
 from cuboidlib.checkpoint import load_model
 from cuboidlib.cli_common import positive_int
+from cuboidlib.dataset import UNVERSIONED_GENERATOR, ShapeSet, load_splits, split_indices
+from cuboidlib.dataset import add_noise, noisy_splits
 from cuboidlib.distance import nearest_surface_distance, point_to_cuboid_distance
-from cuboidlib.abstraction import REFINE_LR, AbstractionBatch
 from cuboidlib.evaluation import evaluate_baseline, predict_cuboids, score_cuboids
 from cuboidlib.files import write_text_atomic
 from cuboidlib.fitting import FitConfig, fit_cuboids
 from cuboidlib.losses import compactness_loss
 from cuboidlib.model import CuboidAbstractionNet
 from cuboidlib.release import git_commit
-from cuboidlib.dataset import UNVERSIONED_GENERATOR, ShapeSet, load_splits, split_indices
-from cuboidlib.dataset import add_noise, noisy_splits
-from cuboidlib.train import FINETUNE_DIR, TrainConfig, Trainer
-from cuboidlib.train import course_config as train_course_config
+from cuboidlib.train import FINETUNE_DIR, Trainer
+from cuboidlib.train_config import TrainConfig
+from cuboidlib.train_config import course_config as train_course_config
 from summaries import (  # noqa: F401 - the scripts use them through this module
     CD_CONVENTION,
     machine,
@@ -183,9 +184,9 @@ DATA_NOTE = (
 
 
 def course_config(category: str, steps: int, **changes) -> TrainConfig:
-    """The course-scale :class:`~cuboidlib.train.TrainConfig` of ``category`` trained for ``steps`` steps.
+    """The course-scale :class:`~cuboidlib.train_config.TrainConfig` of ``category`` trained for ``steps`` steps.
 
-    The committed network's recipe (:func:`cuboidlib.train.course_config`, read from
+    The committed network's recipe (:func:`cuboidlib.train_config.course_config`, read from
     ``data_samples/checkpoints/configs/<category>.json``), so experiments and checkpoints cannot drift
     apart. The step budget replaces the file's (no time budget: runs are repeatable);
     validation (model selection) every 100 steps and at the end; one checkpoint at the end.
@@ -356,7 +357,7 @@ class Run:
     name: unique, file-system safe (its folder under the runs directory).
     key: the run's coordinates in the table, JSON values (e.g. {"lambda_1": 0.1, "seed": 0}); the
       summary averages over ``seed``.
-    config: the :class:`~cuboidlib.train.TrainConfig` (for "fit" and "score" tasks: the data it uses).
+    config: the :class:`~cuboidlib.train_config.TrainConfig` (for "fit" and "score" tasks: the data it uses).
     task: "train" (train, select on validation, score on test), "score" (score the checkpoint
       ``options["checkpoint"]``) or "fit" (per-shape fitting of every test shape, ``options["fit"]``
       a FitConfig dict).

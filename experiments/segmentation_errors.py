@@ -55,7 +55,7 @@ from cuboidlib.geometry import Cuboids
 from cuboidlib.metrics import mean_iou, transfer_part_labels
 from cuboidlib.rotations import quaternion_to_rotation_matrix
 from cuboidlib.shapes import make_collection
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from airplane_engines import composition  # noqa: E402

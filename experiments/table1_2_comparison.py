@@ -29,7 +29,7 @@ import dataclasses
 from pathlib import Path
 
 from cuboidlib.checkpoint import load_checkpoint
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 import runner
 

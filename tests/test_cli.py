@@ -32,7 +32,7 @@ from cuboidlib.fitting import FitConfig
 from cuboidlib.io import read_point_cloud, write_point_cloud
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.shapes import make_shape
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 SAMPLES = Path(cuboidlib.__file__).resolve().parent.parent / "data_samples"
 TINY = ModelConfig.small(num_cuboids=6, k=8, edge_dims=(8,), global_dim=16, latent_dim=8, cuboid_code_dim=8,

@@ -21,7 +21,8 @@ from cuboidlib.distance import point_to_cuboid_distance
 from cuboidlib.edgeconv_fast import FastEdgeConv
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.neighbors import knn_indices
-from cuboidlib.train import TrainConfig, Trainer
+from cuboidlib.train import Trainer
+from cuboidlib.train_config import TrainConfig
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 

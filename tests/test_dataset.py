@@ -105,7 +105,7 @@ def test_shapenet_part_and_authors_layouts(tmp_path):
 
 def test_training_reads_a_shapenet_part_root_and_the_authors_layout(tmp_path):
     from cuboidlib.dataset import data_layout, load_splits
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     root = tmp_path / "shapenet"
     (root / "train_test_split").mkdir(parents=True)

@@ -6,7 +6,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.cli import main
+from cuboidlib.dataset import ShapeSet, load_splits
 from cuboidlib.evaluation import (
     evaluate_baseline,
     evaluate_model,
@@ -15,14 +17,13 @@ from cuboidlib.evaluation import (
     predict_cuboids,
     score_cuboids,
 )
-from cuboidlib.abstraction import AbstractionBatch
 from cuboidlib.geometry import Cuboids, sample_cuboid_surfaces
 from cuboidlib.io import write_point_cloud
 from cuboidlib.metrics import ChamferConvention
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.shapes import make_shape
-from cuboidlib.dataset import ShapeSet, load_splits
-from cuboidlib.train import TrainConfig, Trainer
+from cuboidlib.train import Trainer
+from cuboidlib.train_config import TrainConfig
 
 
 def load_model_for_test(path):
@@ -288,7 +289,7 @@ def test_evaluate_on_a_labelled_folder_names_the_parts_and_scores_every_shape(tm
     assert f"{category}: {category}, data folder {folder}, every shape ({n} shapes" in out.splitlines()[0]
     assert "part labels transferred from 2 shapes" in out and f"to the other {n - 2}" in out
     names = PART_NAMES[category]
-    assert f"IoU per part (%), network" in out and all(f"{name} " in out for name in names) and "part 0" not in out
+    assert "IoU per part (%), network" in out and all(f"{name} " in out for name in names) and "part 0" not in out
     data = json.loads((tmp_path / "all.json").read_text())
     network, kmeans = data["results"]
     assert data["split"] == "all" and network["n_shapes"] == kmeans["n_shapes"] == n

@@ -9,7 +9,7 @@ import pytest
 
 from cuboidlib.dataset import UNVERSIONED_GENERATOR, DataConfig, load_shapes
 from cuboidlib.shapes import GENERATOR_VERSION, make_collection
-from cuboidlib.train import TrainConfig, course_config
+from cuboidlib.train_config import TrainConfig, course_config
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -31,7 +31,7 @@ from cuboidlib.metrics import mean_iou, normal_consistency, part_ious
 from cuboidlib.normalization import denormalize, normalize
 from cuboidlib.normals import MAX_POINTS, estimate_normals
 from cuboidlib.shapes import ShapeCollection, make_collection, make_shape
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "data_samples" / "checkpoints"
 
@@ -515,7 +515,8 @@ def test_result_file_names_are_unique_not_only_their_stems(tmp_path):
 
 
 def test_a_new_training_run_never_overwrites_files_or_writes_through_links(tmp_path):
-    from cuboidlib.train import Trainer, course_config
+    from cuboidlib.train import Trainer
+    from cuboidlib.train_config import course_config
 
     config = course_config("chair", n_shapes=8, n_points=64, batch_size=4, max_steps=1, max_minutes=None)
     outside = tmp_path / "outside.csv"

@@ -23,7 +23,8 @@ from cuboidlib.edgeconv_fast import FastEdgeConv, _EdgeMLP
 from cuboidlib.losses import LossConfig, total_loss
 from cuboidlib.model import CuboidAbstractionNet, ModelConfig
 from cuboidlib.neighbors import knn_indices
-from cuboidlib.train import TrainConfig, Trainer
+from cuboidlib.train import Trainer
+from cuboidlib.train_config import TrainConfig
 
 needs_compiler = pytest.mark.skipif(not kernels.available(), reason="no C++ compiler or ninja here")
 

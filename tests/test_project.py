@@ -234,7 +234,7 @@ PAPER_M = {"chair": 16, "table": 14, "airplane": 20, "animal": 16}
 def test_committed_checkpoint_comes_with_its_card_and_config(category):
     from cuboidlib.checkpoint import load_checkpoint
     from cuboidlib.release import read_card
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     path = CHECKPOINTS / f"{category}.pt"
     state = load_checkpoint(path)  # weights_only: nothing in the file can run code
@@ -282,7 +282,7 @@ def test_paper_scale_config_is_the_chair_recipe_at_the_papers_scale(stage):
     of the chair recipe."""
     from cuboidlib.dataset import split_indices
     from cuboidlib.model import ModelConfig
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     recipe = TrainConfig.load_json(CHECKPOINTS / "configs" / f"{stage}chair.json")
     large = TrainConfig.load_json(CHECKPOINTS / "configs" / "paper_scale" / f"{stage}chair.json")
@@ -417,7 +417,7 @@ def test_the_seed_runs_train_the_recipe_and_the_page_shows_them():
     constant, with or without a warm-up), its existence weight and its compactness weight, which the second stage
     shares or keeps at the recipe's (then the table names the first stage's). The step budget is seeds.sh's 2500
     unless the name ends in another ("-1900steps"). The page shows the table that seeds_table.py makes of them."""
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     fifteen = ROOT / "experiments" / "fifteen"
     table = _script_module(fifteen / "seeds_table.py")
@@ -487,7 +487,7 @@ def test_the_15_minute_recipe_is_one_recipe_with_its_stated_exceptions(stage):
     and their longer second stage, each measured in experiments/fifteen/README.md; the first stage is the
     committed first stage with a shorter budget, both cores and, for chairs and tables, a larger compactness
     weight, for animals a smaller one."""
-    from cuboidlib.train import TrainConfig
+    from cuboidlib.train_config import TrainConfig
 
     quick = {c: _flat(TrainConfig.load_json(CHECKPOINTS / "configs" / "15min" / f"{stage}{c}.json").to_dict())
              for c in CATEGORIES}

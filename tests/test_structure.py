@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("export_view",),                                         # HTML views of result files
     ("results", "runs"),                                      # the result types; a run's bookkeeping
     ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, the count
-    ("fitting", "evaluation", "network_check"),               # the per-shape fit, the test-split scores, the network check
+    ("fitting", "evaluation", "network_check", "train_config"),  # the per-shape fit, the test-split scores, the network check, the training config
     ("abstraction", "train"),                                 # the one pipeline, the training loop (Sec. 3.4.5)
     ("release",),                                             # a trained run -> a committed network and card
     ("cli_common",),                                          # what the commands share: errors, inputs, outputs

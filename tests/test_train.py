@@ -14,10 +14,11 @@ import torch
 import cuboidlib.train as train_module
 from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, load_model, save_checkpoint
 from cuboidlib.cli import main
+from cuboidlib.dataset import load_splits, split_indices
 from cuboidlib.losses import LossConfig
 from cuboidlib.model import ModelConfig
-from cuboidlib.dataset import load_splits, split_indices
-from cuboidlib.train import TrainConfig, Trainer, TrainingDiverged, validation_loss
+from cuboidlib.train import Trainer, TrainingDiverged, validation_loss
+from cuboidlib.train_config import TrainConfig
 
 # A network small enough for a step to take milliseconds; same structure as the paper's.
 TINY_MODEL = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
@@ -895,7 +896,7 @@ def test_read_card_rejects_missing_and_foreign_files(tmp_path):
 
 
 def test_course_config_is_the_committed_recipe():
-    from cuboidlib.train import course_config
+    from cuboidlib.train_config import course_config
 
     for category in ("airplane", "chair", "table", "animal"):
         config = course_config(category)

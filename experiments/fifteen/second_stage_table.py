@@ -10,7 +10,7 @@ import argparse
 import json
 from pathlib import Path
 
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments" / "fifteen" / "results" / "second_stage"

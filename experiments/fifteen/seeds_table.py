@@ -17,7 +17,7 @@ from pathlib import Path
 from itertools import combinations
 from statistics import mean
 
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 from second_stage_table import flat_config
 
 ROOT = Path(__file__).resolve().parents[2]

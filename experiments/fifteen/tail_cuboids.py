@@ -23,7 +23,7 @@ from cuboidlib.checkpoint import load_checkpoint, load_model
 from cuboidlib.dataset import load_splits
 from cuboidlib.evaluation import label_transfer_split, predict_cuboids, segmentation_scores
 from cuboidlib.shapes import make_collection
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT = (ROOT / "data_samples" / "checkpoints" / "animal.pt",

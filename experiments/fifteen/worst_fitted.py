@@ -23,7 +23,7 @@ from cuboidlib.dataset import load_splits
 from cuboidlib.distance import point_to_cuboid_distance
 from cuboidlib.evaluation import label_transfer_split, predict_cuboids
 from cuboidlib.shapes import make_collection
-from cuboidlib.train import TrainConfig
+from cuboidlib.train_config import TrainConfig
 from tail_cuboids import shown_path, write_rows
 
 ROOT = Path(__file__).resolve().parents[2]
