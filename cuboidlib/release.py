@@ -366,21 +366,39 @@ def read_card(checkpoint: str | os.PathLike) -> dict:
     return card
 
 
-def cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
+
+def _short_cards_markdown(checkpoints: list[str | os.PathLike]) -> str:
+    rows = ["| network | M | CD x1000: network / k-means boxes | mIoU %: network / k-means boxes | N_AC |",
+            "| --- | --- | --- | --- | --- |"]
+    for checkpoint in checkpoints:
+        card = read_card(checkpoint)
+        network, baseline = card["test"]["results"]
+        cd = [1000 * r["chamfer"][0]["value"] for r in (network, baseline)]
+        rows.append(f"| {Path(checkpoint).stem} | {card['config']['model']['num_cuboids']} "
+                    f"| {cd[0]:.2f} / {cd[1]:.2f} | {100 * network['miou']:.1f} / {100 * baseline['miou']:.1f} "
+                    f"| {network['n_ac']:.2f} |")
+    return "\n".join(rows)
+
+
+def cards_markdown(checkpoints: list[str | os.PathLike], short: bool = False) -> str:
     """A Markdown table of released checkpoints, one row per card, for README files.
 
     Columns: checkpoint (the file's name), M, training (steps, minutes, "a + b" for two stages, and the whole
     command's minutes when the card records them; processes), test shapes (and their generator version, 1 for a
     config without one), then network / baseline Chamfer
     distance x 1000 (the card's first convention), normal consistency and mIoU %, and the network's N_AC and box
-    distance ("-" on a card scored before the box distance existed).
+    distance ("-" on a card scored before the box distance existed). The short table, for a front page, keeps
+    the network's name, M, the Chamfer distance, the mIoU and N_AC.
 
     Args:
         checkpoints: the released ``.pt`` files (or their cards).
+        short: the front page's five columns instead of all nine.
 
     Returns:
         The table, lines joined by newlines.
     """
+    if short:
+        return _short_cards_markdown(checkpoints)
     rows = ["| checkpoint | M | training | test shapes, generator | CD x1000: network / baseline | NC: network / baseline "
             "| mIoU %: network / baseline | N_AC | box distance |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]

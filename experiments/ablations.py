@@ -1,8 +1,8 @@
-"""The 15-minute ablations (README, "The 15-minute ablations"): what the runs finished so far say.
+"""The 15-minute ablations (README, "The 15-minute ablations"): what the finished runs say.
 
 ``ablations_15min.sh`` trains Tables 3, 4 and 6 on chairs at the 15-minute recipe's scale, three seeds a cell. Each
-finished run leaves ``results/runs_15min/<script>_15min/<stamp>/<run>/record.json``, and the records are committed
-as they finish. This module reads whatever records are there and applies the tests the README states before the runs:
+finished run leaves ``results/runs_15min/<script>_15min/<stamp>/<run>/record.json``. This module reads whatever
+records are there and applies the tests the README states before the runs:
 
 * two cells **differ** when their seeds do not overlap: every seed of one lies below every seed of the other (were
   the cells the same, three seeds each would do this by chance with probability 2/20 = 0.1);
@@ -11,9 +11,9 @@ as they finish. This module reads whatever records are there and applies the tes
 The same tests apply to the 600-step runs of the same cells (``results/<script>.json``, the first look), and the
 same rule to Table 5's 15-minute runs (``results/table5_compactness_15min.json``), whose tests were written after them.
 
-A test's verdict is "holds", "fails", "unresolved at three seeds" (the seeds overlap) or, while some of its runs
-are missing, "unresolved: k of n runs finished". Table 4's normal consistency is measured both ways (``nc_both``),
-as lesson 08 reads it. Records written before the rename of ``flatness`` are read with today's metric names
+A test's verdict is "holds", "fails" or "unresolved at three seeds" (the seeds overlap): results. While some of
+its runs have not finished, it is "pending", which is no result at all (:func:`word` writes "pending (k of n
+runs)"). Table 4's normal consistency is measured both ways (``nc_both``), as lesson 08 reads it. Records written before the rename of ``flatness`` are read with today's metric names
 (:func:`summaries.result_rows`).
 """
 
@@ -198,7 +198,7 @@ def verdict(test: Test, records: Sequence[dict], seeds: int = 3) -> dict:
 
     Returns:
         {"claim", "metric", "finished", "planned", "verdict", "why"}: ``verdict`` is "holds", "fails",
-        "unresolved at three seeds", or "unresolved" while fewer than ``seeds`` seeds of a cell have finished.
+        "unresolved at three seeds", or "pending" while fewer than ``seeds`` seeds of a cell have finished.
     """
     if seeds < 2:
         raise ValueError(f"the rule needs at least 2 seeds a cell, got {seeds}")
@@ -206,18 +206,39 @@ def verdict(test: Test, records: Sequence[dict], seeds: int = 3) -> dict:
     finished, planned = sum(min(len(v), seeds) for v in values), seeds * len(values)
     result = {"claim": test.claim, "metric": test.metric, "finished": finished, "planned": planned}
     if finished < planned:
-        return {**result, "verdict": "unresolved", "why": f"{finished} of {planned} runs finished"}
+        return {**result, "verdict": "pending", "why": f"{finished} of {planned} runs finished"}
     word, why = _compare(test, values)
     return {**result, "verdict": word, "why": why}
 
 
 def claims(verdicts: Sequence[dict]) -> dict[str, str]:
-    """claim -> its verdict over its tests: "holds" when all hold, "fails" when one fails, "unresolved" otherwise."""
+    """claim -> its verdict over its tests: "fails" when one fails, else "pending" when one is pending, "holds" when
+    all hold, "unresolved at three seeds" otherwise."""
     out: dict[str, list[str]] = {}
     for v in verdicts:
         out.setdefault(v["claim"], []).append(v["verdict"])
-    return {claim: "fails" if "fails" in words else "holds" if set(words) == {"holds"} else "unresolved"
-            for claim, words in out.items()}
+    return {claim: "fails" if "fails" in words else "pending" if "pending" in words
+            else "holds" if set(words) == {"holds"} else "unresolved at three seeds" for claim, words in out.items()}
+
+
+def word(verdict_: dict) -> str:
+    """A verdict in a table's words: "pending (5 of 6 runs)" while runs are missing, the verdict itself otherwise."""
+    if verdict_["verdict"] == "pending":
+        return f"pending ({verdict_['finished']} of {verdict_['planned']} runs)"
+    return verdict_["verdict"]
+
+
+def judge(tests: Sequence[Test], records: Sequence[dict], seeds: int = 3) -> dict[str, str]:
+    """claim -> the verdict over its tests in :func:`word`'s words; a pending claim counts the runs of all the cells
+    its tests compare: "pending (8 of 9 runs)"."""
+    out = {}
+    for claim, verdict_ in claims([verdict(t, records, seeds) for t in tests]).items():
+        cells_ = {json.dumps((t.metric, c), sort_keys=True): (t.metric, c) for t in tests if t.claim == claim
+                  for c in t.cells}
+        seen = {json.dumps(c, sort_keys=True): min(len(cell_values(records, c, m)), seeds) for m, c in cells_.values()}
+        finished, planned = sum(seen.values()), seeds * len(seen)
+        out[claim] = word({"verdict": verdict_, "finished": finished, "planned": planned})
+    return out
 
 
 def describe(test: Test) -> str:
@@ -245,7 +266,7 @@ def main() -> int:
                   + f": {row['finished']} of {row['planned']} seeds")
         for test in TESTS[table]:
             v = verdict(test, records)
-            print(f"  {describe(test)}: {v['verdict']} ({v['why']})")
+            print(f"  {describe(test)}: {word(v)}" + ("" if v["verdict"] == "pending" else f" ({v['why']})"))
     return 0
 
 

@@ -44,7 +44,7 @@ from cuboidlib.abstraction import AbstractionBatch  # noqa: E402
 from cuboidlib.dataset import ShapeSet  # noqa: E402
 from cuboidlib.geometry import Cuboids  # noqa: E402
 from cuboidlib.losses import LossConfig  # noqa: E402
-from cuboidlib.train import TrainConfig  # noqa: E402
+from cuboidlib.train_config import TrainConfig  # noqa: E402
 
 SCRIPTS = (table3, table4, table5, table6, fig8, fig9, fig10, fig11, table12, paper_vs_code)
 
@@ -773,7 +773,9 @@ def test_table3_verdicts_from_partial_and_complete_records(tmp_path):
     partial = ablations.read_records("table3", tmp_path)
     assert [c["finished"] for c in ablations.cells("table3", partial)] == [3, 3, 0]
     verdicts = [ablations.verdict(t, partial) for t in ablations.TESTS["table3"]]
-    assert {(v["verdict"], v["why"]) for v in verdicts} == {("unresolved", "3 of 6 runs finished")}
+    assert {(v["verdict"], v["why"]) for v in verdicts} == {("pending", "3 of 6 runs finished")}
+    assert {ablations.word(v) for v in verdicts} == {"pending (3 of 6 runs)"}, "not a result: no runs of P2C-Seg yet"
+    assert set(ablations.judge(ablations.TESTS["table3"], partial).values()) == {"pending (6 of 9 runs)"}
 
     _write_records(tmp_path, "table3", "20260102-000000-000000", complete[:3])
     records = ablations.read_records("table3", tmp_path)
@@ -782,7 +784,18 @@ def test_table3_verdicts_from_partial_and_complete_records(tmp_path):
     assert got == {("cd", "P2C-Dis"): "holds", ("cd", "Chamfer-Dis"): "unresolved at three seeds",
                    ("miou", "P2C-Dis"): "holds", ("miou", "Chamfer-Dis"): "fails"}
     claims = ablations.claims([ablations.verdict(t, records) for t in ablations.TESTS["table3"]])
-    assert claims == {"P2C-Seg gives the lowest Chamfer distance": "unresolved", "P2C-Seg gives the highest mIoU": "fails"}
+    assert claims == {"P2C-Seg gives the lowest Chamfer distance": "unresolved at three seeds",
+                      "P2C-Seg gives the highest mIoU": "fails"}
+    assert ablations.judge(ablations.TESTS["table3"], records) == claims
+
+
+def test_a_claim_fails_on_one_failed_test_even_while_others_are_pending():
+    tests = [ablations.Test("c", "cd", ({"v": "a"}, {"v": "b"}), "lower"),
+             ablations.Test("c", "cd", ({"v": "a"}, {"v": "d"}), "lower")]
+    rows = [_record(f"{v}{s}", {"v": v, "seed": s}, cd=x + s / 10) for v, x in (("a", 2.0), ("b", 1.0)) for s in range(3)]
+    assert [ablations.verdict(t, rows)["verdict"] for t in tests] == ["fails", "pending"]
+    assert ablations.claims([ablations.verdict(t, rows) for t in tests]) == {"c": "fails"}
+    assert ablations.judge(tests[1:], rows) == {"c": "pending (3 of 6 runs)"}
 
 
 def test_a_newer_record_of_the_same_run_wins_and_foreign_records_are_left_out(tmp_path):

@@ -328,14 +328,15 @@ def test_the_15_minute_page_shows_the_cards_of_its_networks():
         assert shown == expected, (category, shown, expected)
 
 
-def test_readme_checkpoint_table_is_the_cards():
+@pytest.mark.parametrize("page, short", [("README.md", True), ("data_samples/checkpoints/README.md", False)])
+def test_checkpoint_tables_are_the_cards(page, short):
     from cuboidlib.release import cards_markdown
 
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / page).read_text()
     block = re.search(r"<!-- checkpoints:start -->\n(.*?)\n<!-- checkpoints:end -->", text, re.S)
-    assert block, "README misses the checkpoint table markers"
-    expected = cards_markdown([CHECKPOINTS / f"{c}.pt" for c in CATEGORIES])
-    assert block.group(1).strip() == expected, "regenerate README's table with cuboidlib.release.cards_markdown"
+    assert block, f"{page} misses the checkpoint table markers"
+    expected = cards_markdown([CHECKPOINTS / f"{c}.pt" for c in CATEGORIES], short=short)
+    assert block.group(1).strip() == expected, f"regenerate {page}'s table with cuboidlib.release.cards_markdown"
 
 
 # ----------------------------------------------------------------------------------------------

@@ -743,6 +743,11 @@ def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsy
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert header.endswith("| N_AC | box distance |") and len(cells) == 9
     assert cells[0] == "`chair.pt`" and cells[-2:] == [f"{network['n_ac']:.2f}", f"{network['box_distance']:.4f}"]
+    header, _, row = cards_markdown([dest], short=True).splitlines()
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert header.startswith("| network | M |") and len(cells) == 5
+    assert cells[0] == "chair" and cells[2].startswith(f"{1000 * network['chamfer'][0]['value']:.2f} / ")
+    assert cells[3] == f"{100 * network['miou']:.1f} / {100 * baseline['miou']:.1f}" and cells[4] == f"{network['n_ac']:.2f}"
 
 
 def test_card_of_a_two_stage_recipe_holds_both_stages(tmp_path, tiny, capsys):
