@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
+import command_line
 import runner
 import table3_supervision as table3
 import table4_distance as table4
@@ -114,7 +115,7 @@ def planned_runs(table: str) -> list[runner.Run]:
     _check_table(table)
     module, options = ABLATIONS[table]
     args = module.EXPERIMENT.parser().parse_args([*options, *COMMON])
-    return module.EXPERIMENT.build_runs(runner._scale(args, module.EXPERIMENT), args)
+    return module.EXPERIMENT.build_runs(command_line.scale_from_args(args, module.EXPERIMENT), args)
 
 
 def read_records(table: str, root: str | Path = RUNS_15MIN) -> list[dict]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import command_line
 import runner
 import table5_compactness as table5
 
@@ -34,7 +35,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
                                     "Fig. 10: chairs abstracted by networks trained with four compactness weights")
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="fig10_compactness",
     title="Fig. 10: chairs abstracted with lambda_1 in {0, 0.05, 0.1, 0.2}, the number of cuboids beside each",
     description=__doc__,
@@ -47,4 +48,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from cuboidlib.dataset import split_indices
 
+import command_line
 import runner
 
 DENSITIES = (256, 1024, 4096)
@@ -112,7 +113,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
     return [path]
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="fig11_point_density",
     title="Fig. 11: chairs trained with 256, 1024 and 4096 points (figure of one test shape, metrics)",
     description=__doc__,
@@ -126,4 +127,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

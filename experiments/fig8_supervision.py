@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import command_line
 import runner
 import table3_supervision as table3
 
@@ -35,7 +36,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
                                     "Fig. 8: chairs abstracted and segmented by the three supervision variants")
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="fig8_supervision",
     title="Fig. 8: the allocations of P2C-Dis, Chamfer-Dis and P2C-Seg on chairs (figure, Table 3's metrics)",
     description=__doc__,
@@ -48,4 +49,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

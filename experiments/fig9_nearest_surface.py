@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import command_line
 import runner
 import table4_distance as table4
 
@@ -50,7 +51,7 @@ def draw(records: list[dict], scale: runner.Scale, args: argparse.Namespace, ste
                                     "Fig. 9: chairs trained with the nearest-surface distance (top) and with Eq. (5)")
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="fig9_nearest_surface",
     title="Fig. 9: the cuboids of the nearest-surface distance against Eq. (5) on chairs (figure, thickness)",
     description=__doc__,
@@ -63,4 +64,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

@@ -24,6 +24,7 @@ import re
 
 from cuboidlib.losses import LossConfig
 
+import command_line
 import runner
 
 #: The code's choices in the order they are added, each a LossConfig field set to its authors_code() value.
@@ -71,7 +72,7 @@ def report(records: list[dict], scale: runner.Scale, args: argparse.Namespace) -
     ])
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="paper_vs_code",
     title="The paper's losses vs the authors' code, one change at a time (chairs; N_AC, Chamfer distance, mIoU)",
     description=__doc__,
@@ -83,4 +84,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

@@ -31,6 +31,7 @@ from pathlib import Path
 from cuboidlib.checkpoint import load_checkpoint
 from cuboidlib.train_config import TrainConfig
 
+import command_line
 import runner
 
 CATEGORIES = ("airplane", "chair", "table", "animal")
@@ -51,7 +52,7 @@ METHODS = ("network", "network + refinement", "k-means boxes", "per-shape fittin
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--categories", type=runner.categories_option(CATEGORIES), default=CATEGORIES,
+    p.add_argument("--categories", type=command_line.categories_option(CATEGORIES), default=CATEGORIES,
                    help="comma-separated subset of airplane,chair,table,animal (default: all four)")
     p.add_argument("--checkpoints", metavar="DIR",
                    help="score the released checkpoints DIR/<category>.pt (e.g. data_samples/checkpoints) instead "
@@ -128,7 +129,7 @@ def notes(scale: runner.Scale, args: argparse.Namespace) -> list[str]:
     return lines
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="table1_2_comparison",
     title="Tables 1-2 at course scale: network vs k-means boxes vs per-shape fitting on four categories "
           "(Chamfer distance, mIoU)",
@@ -143,4 +144,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 
+import command_line
 import runner
 
 CATEGORIES = ("chair", "table", "airplane")
@@ -42,7 +43,7 @@ PAPER = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--categories", type=runner.categories_option(CATEGORIES), default=CATEGORIES,
+    p.add_argument("--categories", type=command_line.categories_option(CATEGORIES), default=CATEGORIES,
                    help="comma-separated subset of chair,table,airplane (default: all three)")
     p.add_argument("--lambda-compact", type=float, default=0.0,
                    help="lambda_1 of all three variants (default 0: the paper trains them with L_recons only)")
@@ -84,7 +85,7 @@ def notes(scale: runner.Scale, args: argparse.Namespace) -> list[str]:
             "sigma_s = 0; Chamfer-Dis: nearest surface), P2C-Seg by its segmentation branch."]
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="table3_supervision",
     title="Table 3: P2C-Dis vs Chamfer-Dis vs P2C-Seg on chair, table, airplane (Chamfer distance, mIoU)",
     description=__doc__,
@@ -99,4 +100,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 
+import command_line
 import runner
 
 NOISE = (0.0, 0.01, 0.02, 0.03)
@@ -47,10 +48,10 @@ def column_name(column: str, sigma_s: float) -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--noise", type=runner.float_list_option(NOISE), default=NOISE,
+    p.add_argument("--noise", type=command_line.float_list_option(NOISE), default=NOISE,
                    help="comma-separated subset of the noise levels sigma_n " + ",".join(map(str, NOISE)) + " (default: all)")
     names = [column_name(c, s) for c, _, s in COLUMNS]
-    p.add_argument("--columns", type=runner.categories_option(tuple(names)), default=tuple(names),
+    p.add_argument("--columns", type=command_line.categories_option(tuple(names)), default=tuple(names),
                    help="comma-separated subset of the columns " + ",".join(names) + " (default: all)")
 
 
@@ -105,7 +106,7 @@ def notes(scale: runner.Scale, args: argparse.Namespace) -> list[str]:
             "training, validation and test points. Shapes are normalised to a bounding-box diagonal of 1."]
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="table4_distance",
     title="Table 4: nearest-surface vs normal-aware distance (sigma_s 0, 0.025, 0.05) under input noise "
           "sigma_n 0-0.03 (chairs; Chamfer distance, normal consistency)",
@@ -121,4 +122,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

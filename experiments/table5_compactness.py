@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 
+import command_line
 import runner
 
 LAMBDAS = (0.0, 0.05, 0.1, 0.2)
@@ -69,7 +70,7 @@ def report(records: list[dict], scale: runner.Scale, args: argparse.Namespace) -
     ])
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="table5_compactness",
     title="Table 5: compactness weight lambda_1 in {0, 0.05, 0.1, 0.2} (chairs; N_AC, Chamfer distance, mIoU)",
     description=__doc__,
@@ -83,4 +84,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

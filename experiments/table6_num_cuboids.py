@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+import command_line
 import runner
 
 CATEGORIES = ("chair", "table", "airplane")
@@ -29,7 +30,7 @@ PAPER = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--categories", type=runner.categories_option(CATEGORIES), default=CATEGORIES,
+    p.add_argument("--categories", type=command_line.categories_option(CATEGORIES), default=CATEGORIES,
                    help="comma-separated subset of chair,table,airplane (default: all three)")
 
 
@@ -66,7 +67,7 @@ def notes(scale: runner.Scale, args: argparse.Namespace) -> list[str]:
             "is lambda_1 / M^2, so a larger M also means a weaker push towards few cuboids."]
 
 
-EXPERIMENT = runner.Experiment(
+EXPERIMENT = command_line.Experiment(
     name="table6_num_cuboids",
     title="Table 6: number of cuboids M in {8, 12, 16, 20, 24} on chair, table, airplane (Chamfer distance, N_AC)",
     description=__doc__,
@@ -81,4 +82,4 @@ EXPERIMENT = runner.Experiment(
 )
 
 if __name__ == "__main__":
-    raise SystemExit(runner.main(EXPERIMENT))
+    raise SystemExit(command_line.main(EXPERIMENT))

@@ -31,6 +31,7 @@ import fig9_nearest_surface as fig9  # noqa: E402
 import fig10_compactness as fig10  # noqa: E402
 import fig11_point_density as fig11  # noqa: E402
 import paper_vs_code  # noqa: E402
+import command_line  # noqa: E402
 import runner  # noqa: E402
 import segmentation_errors  # noqa: E402
 import summaries  # noqa: E402
@@ -55,7 +56,7 @@ pytestmark = pytest.mark.usefixtures("cache_dir", "restore_threads")
 def _runs(module, *argv: str) -> tuple[runner.Scale, list[runner.Run]]:
     """The runs a script would do for ``argv`` (nothing is trained)."""
     args = module.EXPERIMENT.parser().parse_args(list(argv))
-    scale = runner._scale(args, module.EXPERIMENT)
+    scale = command_line.scale_from_args(args, module.EXPERIMENT)
     return scale, module.EXPERIMENT.build_runs(scale, args)
 
 
@@ -299,7 +300,7 @@ def test_table5_at_the_15_minute_recipes_scale_trains_both_stages_with_each_lamb
 
 
 def test_a_quick_two_stage_run_scores_the_second_stages_weights(tmp_path):
-    code = runner.main(table5.EXPERIMENT, ["--recipe", "15min", "--quick", "--jobs", "1", "--out", str(tmp_path),
+    code = command_line.main(table5.EXPERIMENT, ["--recipe", "15min", "--quick", "--jobs", "1", "--out", str(tmp_path),
                                            "--runs-dir", str(tmp_path / "runs")])
     assert code == 0
     data = json.loads((tmp_path / "table5_compactness_15min_quick.json").read_text())
@@ -309,7 +310,7 @@ def test_a_quick_two_stage_run_scores_the_second_stages_weights(tmp_path):
         assert Path(record["checkpoint"]).parent.name == "finetune" and Path(record["checkpoint"]).is_file()
         assert record["finetune_config"]["loss"]["lambda_compact"] == record["key"]["lambda_1"]
     # --resume reads every finished run back
-    code = runner.main(table5.EXPERIMENT, ["--recipe", "15min", "--quick", "--jobs", "1", "--out", str(tmp_path),
+    code = command_line.main(table5.EXPERIMENT, ["--recipe", "15min", "--quick", "--jobs", "1", "--out", str(tmp_path),
                                            "--runs-dir", str(tmp_path / "runs"), "--resume"])
     again = json.loads((tmp_path / "table5_compactness_15min_quick.json").read_text())
     assert code == 0 and again["settings"]["reused_runs"] == 4
@@ -377,7 +378,7 @@ def test_records_written_before_the_rename_give_their_flatness_as_thickness():
 
 
 def test_fig9_quick_draws_both_distances(tmp_path):
-    code = runner.main(fig9.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
+    code = command_line.main(fig9.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
                                          str(tmp_path / "runs")])
     assert code == 0
     data = json.loads((tmp_path / "fig9_nearest_surface_quick.json").read_text())
@@ -409,7 +410,7 @@ def test_every_full_run_is_estimated_to_finish_within_45_minutes():
 # ----------------------------------------------------------------------------------------------
 
 
-def _tiny_experiment() -> runner.Experiment:
+def _tiny_experiment() -> command_line.Experiment:
     """Two variants x one seed of a tiny network (the runner's own end-to-end check)."""
 
     def build(scale, args):
@@ -422,11 +423,11 @@ def _tiny_experiment() -> runner.Experiment:
         return summary, runner.text_table(["lambda_1", "CD"], [[str(r["lambda_1"]), runner.mean_sd(r, "cd", 1000)]
                                                                 for r in summary])
 
-    return runner.Experiment("tiny", "a tiny experiment", "two variants", {"source": "none"}, 3, 1, build, report)
+    return command_line.Experiment("tiny", "a tiny experiment", "two variants", {"source": "none"}, 3, 1, build, report)
 
 
 def test_runner_end_to_end_writes_results_with_provenance(tmp_path, capsys):
-    code = runner.main(_tiny_experiment(), ["--quick", "--steps", "3", "--jobs", "1", "--out", str(tmp_path / "res"),
+    code = command_line.main(_tiny_experiment(), ["--quick", "--steps", "3", "--jobs", "1", "--out", str(tmp_path / "res"),
                                             "--runs-dir", str(tmp_path / "runs")])
     assert code == 0
     out = capsys.readouterr().out
@@ -477,12 +478,12 @@ def test_runner_end_to_end_writes_results_with_provenance(tmp_path, capsys):
 
 def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, capsys):
     args = ["--quick", "--steps", "2", "--jobs", "1", "--out", str(tmp_path / "res"), "--runs-dir", str(tmp_path / "runs")]
-    assert runner.main(_tiny_experiment(), args) == 0
+    assert command_line.main(_tiny_experiment(), args) == 0
     (folder,) = (tmp_path / "runs" / "tiny").iterdir()
     first = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
     (folder / "lambda0.2" / runner.RECORD_FILE).unlink()  # as if the second run had been interrupted
     capsys.readouterr()
-    assert runner.main(_tiny_experiment(), args + ["--resume"]) == 0
+    assert command_line.main(_tiny_experiment(), args + ["--resume"]) == 0
     out = capsys.readouterr().out
     assert f"resuming {folder}: 1 of 2 runs already finished" in out
     second = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
@@ -490,7 +491,7 @@ def test_resume_reads_back_the_finished_runs_and_does_only_the_rest(tmp_path, ca
     assert [bool(r.get("reused")) for r in second["runs"]] == [True, False]
     assert second["runs"][0]["results"] == first["runs"][0]["results"], "the finished run is read back as it was"
     changed = args[:2] + ["3"] + args[3:] + ["--resume"]  # another step budget: another configuration, trained anew
-    assert runner.main(_tiny_experiment(), changed) == 0
+    assert command_line.main(_tiny_experiment(), changed) == 0
     third = json.loads((tmp_path / "res" / "tiny_quick.json").read_text())
     assert third["settings"]["reused_runs"] == 0
 
@@ -592,7 +593,7 @@ def test_fig11_quick_writes_the_figure(tmp_path, monkeypatch):
 
     real = applications.abstract_shapes
     monkeypatch.setattr(applications, "abstract_shapes", spy)
-    code = runner.main(fig11.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
+    code = command_line.main(fig11.EXPERIMENT, ["--quick", "--jobs", "1", "--out", str(tmp_path), "--runs-dir",
                                           str(tmp_path / "runs")])
     assert code == 0
     assert drawn == [True, True, True]
@@ -632,7 +633,7 @@ def test_table5_quick_runs_in_worker_processes(tmp_path):
 )
 def test_bad_arguments_give_one_line_errors(module, argv, match, capsys):
     with pytest.raises(SystemExit) as exc:
-        runner.main(module.EXPERIMENT, argv)
+        command_line.main(module.EXPERIMENT, argv)
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "error:" in err and match in err, err
