@@ -26,7 +26,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("normals", "distance", "metrics", "shapes", "thin_shapes", "edgeconv_fast", "frames"),  # Eq. (5), scores, shapes, frames
     ("losses", "model", "io", "viz"),                         # Eqs. (4)-(9), the network (Sec. 3), files, figures
     ("checkpoint", "export", "toy2d", "dataset", "sample_files"),  # weights, result files, the 2D toy, data sets, samples
-    ("export_view",),                                         # HTML views of result files
+    ("export_view", "toy2d_measures"),                        # HTML views of result files; the 2D toy's measures
     ("results", "runs"),                                      # the result types; a run's bookkeeping
     ("applications", "baseline", "merging", "counting"),      # networks' uses (Sec. 4.4), k-means boxes, merging, the count
     ("fitting", "evaluation", "network_check", "train_config"),  # the per-shape fit, the test-split scores, the network check, the training config

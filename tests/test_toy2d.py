@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-from cuboidlib import toy2d  # noqa: E402
+from cuboidlib import toy2d, toy2d_measures  # noqa: E402
 
 
 def one_rect(cx=0.0, cy=0.0, angle=0.0, hx=2.0, hy=1.0, dtype=torch.float32):
@@ -516,17 +516,17 @@ def test_small_fit_normal_soft_finds_one_rectangle_nearest_min_finds_several(rec
     pts, nrm = rectangle_points
     truth = toy2d.Rectangles(*(t.repeat(4, *([1] * (t.dim() - 1))) for t in toy2d.rectangle_shape()))
     soft = toy2d.fit_rectangles(pts, nrm, 4, distance="normal", assignment="soft", steps=300, seed=0)
-    used = toy2d.used_rectangles(soft.portions)
+    used = toy2d_measures.used_rectangles(soft.portions)
     assert int((used.sum(-1) == 1).sum()) >= 3  # one rectangle for (almost) every start
-    assert bool((toy2d.union_iou(soft.rectangles, truth, used) > 0.95).all())
-    assert bool((toy2d.thin_fraction(soft.half_sizes, used, 0.6) == 0).all())
+    assert bool((toy2d_measures.union_iou(soft.rectangles, truth, used) > 0.95).all())
+    assert bool((toy2d_measures.thin_fraction(soft.half_sizes, used, 0.6) == 0).all())
     hard = toy2d.fit_rectangles(pts, nrm, 4, distance="nearest", assignment="min", steps=300, seed=0)
-    used = toy2d.used_rectangles(hard.portions)
+    used = toy2d_measures.used_rectangles(hard.portions)
     # the one-sided loss reaches ~0 although no start ends with a single rectangle
     assert bool((hard.history[-1] < 1e-3).all())
     assert bool((used.sum(-1) >= 2).all())
-    assert float(toy2d.union_iou(hard.rectangles, truth, used).mean()) < 0.95
-    assert float(toy2d.thin_fraction(hard.half_sizes, used, 0.6).mean()) > 0
+    assert float(toy2d_measures.union_iou(hard.rectangles, truth, used).mean()) < 0.95
+    assert float(toy2d_measures.thin_fraction(hard.half_sizes, used, 0.6).mean()) > 0
 
 
 # ------------------------------------------------------------------------------------------------
@@ -534,33 +534,33 @@ def test_small_fit_normal_soft_finds_one_rectangle_nearest_min_finds_several(rec
 
 
 def test_used_rectangles_aspect_ratios_and_thin_fraction():
-    used = toy2d.used_rectangles(torch.tensor([[0.5, 0.04, 0.46]]))
+    used = toy2d_measures.used_rectangles(torch.tensor([[0.5, 0.04, 0.46]]))
     assert used.tolist() == [[True, False, True]]
     half = torch.tensor([[[0.05, 1.0], [0.5, 0.5], [0.01, 0.3]], [[0.2, 0.4], [0.3, 0.3], [1.0, 1.0]]])
-    torch.testing.assert_close(toy2d.aspect_ratios(half), torch.tensor([[20.0, 1.0, 30.0], [2.0, 1.0, 1.0]]))
+    torch.testing.assert_close(toy2d_measures.aspect_ratios(half), torch.tensor([[20.0, 1.0, 30.0], [2.0, 1.0, 1.0]]))
     used = torch.tensor([[True, True, False], [True, True, False]])
     # thickness = 2 * short half size: 0.1, 1.0, (0.02 unused) | 0.4, 0.6
-    torch.testing.assert_close(toy2d.thin_fraction(half, used, 0.2), torch.tensor([0.5, 0.0]))
-    torch.testing.assert_close(toy2d.thin_fraction(half, used, torch.tensor([0.2, 0.5])), torch.tensor([0.5, 0.5]))
-    torch.testing.assert_close(toy2d.thin_fraction(half, torch.zeros(2, 3, dtype=torch.bool), 0.2), torch.zeros(2))
+    torch.testing.assert_close(toy2d_measures.thin_fraction(half, used, 0.2), torch.tensor([0.5, 0.0]))
+    torch.testing.assert_close(toy2d_measures.thin_fraction(half, used, torch.tensor([0.2, 0.5])), torch.tensor([0.5, 0.5]))
+    torch.testing.assert_close(toy2d_measures.thin_fraction(half, torch.zeros(2, 3, dtype=torch.bool), 0.2), torch.zeros(2))
     with pytest.raises(ValueError, match="half_sizes must be positive"):
-        toy2d.aspect_ratios(torch.zeros(1, 1, 2))
+        toy2d_measures.aspect_ratios(torch.zeros(1, 1, 2))
     with pytest.raises(ValueError, match="used must have shape"):
-        toy2d.thin_fraction(half, used[:, :2], 0.2)
+        toy2d_measures.thin_fraction(half, used[:, :2], 0.2)
 
 
 def test_union_iou_known_overlaps():
     unit = toy2d.boxes_to_rectangles([(0.0, 1.0, 0.0, 1.0)])
     shifted = toy2d.boxes_to_rectangles([(0.5, 1.5, 0.0, 1.0)])
     far = toy2d.boxes_to_rectangles([(-1.4, -1.0, -1.4, -1.0)])
-    assert float(toy2d.union_iou(unit, unit)) == pytest.approx(1.0)
-    assert float(toy2d.union_iou(unit, shifted, resolution=300)) == pytest.approx(1 / 3, abs=0.01)
-    assert float(toy2d.union_iou(unit, far)) == 0.0
+    assert float(toy2d_measures.union_iou(unit, unit)) == pytest.approx(1.0)
+    assert float(toy2d_measures.union_iou(unit, shifted, resolution=300)) == pytest.approx(1 / 3, abs=0.01)
+    assert float(toy2d_measures.union_iou(unit, far)) == 0.0
     # a rectangle masked out as unused does not count
     both = toy2d.Rectangles(*(torch.cat([a, b], dim=1) for a, b in zip(unit, far)))
-    assert float(toy2d.union_iou(both, unit, used_a=torch.tensor([[True, False]]))) == pytest.approx(1.0)
+    assert float(toy2d_measures.union_iou(both, unit, used_a=torch.tensor([[True, False]]))) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="same batch size"):
-        toy2d.union_iou(unit, toy2d.Rectangles(*(t.repeat(2, *([1] * (t.dim() - 1))) for t in unit)))
+        toy2d_measures.union_iou(unit, toy2d.Rectangles(*(t.repeat(2, *([1] * (t.dim() - 1))) for t in unit)))
 
 
 def test_orientation_error_is_modulo_a_quarter_turn():
@@ -569,10 +569,10 @@ def test_orientation_error_is_modulo_a_quarter_turn():
     for k, e in enumerate(expected):
         used = torch.zeros(1, 5, dtype=torch.bool)
         used[0, k] = True
-        assert float(toy2d.orientation_error(angles, used)) == pytest.approx(e, abs=1e-9)
+        assert float(toy2d_measures.orientation_error(angles, used)) == pytest.approx(e, abs=1e-9)
     both = torch.tensor([[True, False, True, False, False]])
-    assert float(toy2d.orientation_error(angles, both)) == pytest.approx(math.pi / 16)
-    assert float(toy2d.orientation_error(angles + 0.3, both, reference=0.3)) == pytest.approx(math.pi / 16)
+    assert float(toy2d_measures.orientation_error(angles, both)) == pytest.approx(math.pi / 16)
+    assert float(toy2d_measures.orientation_error(angles + 0.3, both, reference=0.3)) == pytest.approx(math.pi / 16)
 
 
 def test_stack_rectangles_pads_with_absent_rectangles():
@@ -600,7 +600,7 @@ def test_draw_abstraction_draws_points_normals_and_rectangles():
     pts, nrm, labels = toy2d.sample_union_boundary(*shape, 50, generator=torch.Generator().manual_seed(0))
     fig, ax = plt.subplots()
     used = torch.tensor([True, True, False])
-    toy2d.draw_abstraction(ax, pts[0], nrm[0], tuple(t[0] for t in shape), used=used, labels=labels[0], title="U")
+    toy2d_measures.draw_abstraction(ax, pts[0], nrm[0], tuple(t[0] for t in shape), used=used, labels=labels[0], title="U")
     assert len(ax.lines) == 3  # one closed outline per rectangle (the unused one dotted)
     assert ax.lines[2].get_linestyle() == ":"
     assert len(ax.collections) == 2  # the points and the normal arrows
@@ -612,7 +612,7 @@ def test_draw_abstraction_can_leave_out_the_unused_rectangles():
     shape = toy2d.u_shape()
     fig, ax = plt.subplots()
     used = torch.tensor([True, False, True])
-    toy2d.draw_abstraction(ax, rectangles=tuple(t[0] for t in shape), used=used, show_unused=False)
+    toy2d_measures.draw_abstraction(ax, rectangles=tuple(t[0] for t in shape), used=used, show_unused=False)
     assert len(ax.lines) == 2  # the two used outlines only
     assert all(line.get_linestyle() == "-" for line in ax.lines)
     assert ax.lines[1].get_color() == plt.cm.tab10(2)  # each keeps the colour of its index
