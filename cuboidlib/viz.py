@@ -32,6 +32,8 @@ __all__ = [
     "plot_cuboids_matplotlib_grid",
     "figure_bundle",
     "show_figure",
+    "draw_network",
+    "plot_log",
 ]
 
 #: 30 distinct colours (hex); cuboid m is drawn in PALETTE[m % 30]. The first ten are matplotlib's
@@ -515,3 +517,197 @@ def show_figure(fig, static, dpi: int = 110) -> None:
     except ImportError:  # pragma: no cover - IPython ships with jupyterlab
         return
     display(bundle, raw=True)
+
+
+# ----------------------------------------------------------------------------------------------
+# Lesson 04: the network's diagram (Fig. 3) and a training log
+# ----------------------------------------------------------------------------------------------
+
+
+def _traced_shapes(net, points: torch.Tensor) -> dict[str, tuple[int, ...]]:
+    """Run ``net`` once in evaluation mode and record the shape of what each piece returns (forward hooks)."""
+    shapes: dict[str, tuple[int, ...]] = {}
+    pieces = {"edge1": net.embedding.edge_convs[0], "edge2": net.embedding.edge_convs[1],
+              "code": net.abstraction.E_cb, "g_p": net.segmentation.point_proj,
+              "g_c": net.segmentation.cuboid_proj}
+    hooks = [m.register_forward_hook(lambda m, i, o, name=name: shapes.__setitem__(name, tuple(o.shape)))
+             for name, m in pieces.items()]
+    hooks.append(net.abstraction.E_cb.register_forward_hook(
+        lambda m, i, o: shapes.__setitem__("onehot", tuple(i[0].shape))))
+    was_training = net.training
+    try:
+        with torch.no_grad():
+            out = net.eval()(points)
+    finally:
+        for h in hooks:
+            h.remove()
+        net.train(was_training)
+    for name in ("point_features", "global_feature", "z", "cuboid_features", "half_sizes", "quaternions",
+                 "centers", "exist_logits", "affinity"):
+        shapes[name] = tuple(getattr(out, name).shape)
+    shapes["input"] = tuple(points.shape)
+    return shapes
+
+
+def _diagram_box(ax, x, y, text, color, w, h, size):
+    """A rounded box centred at (x, y) with its text; returns (x, y, w, h) for :func:`_diagram_arrow`."""
+    from matplotlib.patches import FancyBboxPatch
+
+    ax.add_patch(FancyBboxPatch((x - w / 2, y - h / 2), w, h, boxstyle="round,pad=0.05", fc=color, ec="0.3"))
+    ax.text(x, y, text, ha="center", va="center", fontsize=size)
+    return x, y, w, h
+
+
+def _diagram_arrow(ax, a, b, label="", vertical=False):
+    """An arrow from box a to box b, labelled beside (vertical) or above (horizontal) its middle."""
+    (xa, ya, wa, ha), (xb, yb, wb, hb) = a, b
+    if vertical:  # from the bottom of a to the top of b
+        p, q = (xa, ya - ha / 2 - 0.05), (xb, yb + hb / 2 + 0.05)
+    else:  # between the facing sides
+        sign = 1 if xb > xa else -1
+        p, q = (xa + sign * (wa / 2 + 0.05), ya), (xb - sign * (wb / 2 + 0.05), yb)
+    ax.annotate("", xy=q, xytext=p, arrowprops=dict(arrowstyle="-|>", color="0.25", lw=1.2))
+    mx, my = (p[0] + q[0]) / 2, (p[1] + q[1]) / 2
+    if vertical:
+        ax.text(mx + 0.12, my, label, ha="left", va="center", fontsize=8)
+    else:
+        ax.text(mx, my + 0.12, label, ha="center", va="bottom", fontsize=8)
+
+
+def draw_network(net, points: torch.Tensor):
+    """Draw the network as the paper's Fig. 3 does, with tensor shapes read from one forward pass.
+
+    The shapes on the arrows are not typed by hand: forward hooks record what each piece returns. The batch,
+    point and cuboid axes are written B, N and M, after checking their sizes; the other numbers are channels.
+
+    Args:
+        net: a :class:`~cuboidlib.model.CuboidAbstractionNet` (any :class:`~cuboidlib.model.ModelConfig`
+            with two EdgeConv layers); its training mode is restored afterwards.
+        points: (B, N, 3) point clouds to run through ``net``.
+
+    Returns:
+        ``(fig, shapes)``: the matplotlib ``Figure`` (one axes, axis off) and a dict from the name of each
+        piece (``"input"``, ``"edge1"``, ``"edge2"``, ``"point_features"``, ``"global_feature"``, ``"z"``,
+        ``"onehot"``, ``"code"``, ``"cuboid_features"``, ``"half_sizes"``, ``"quaternions"``, ``"centers"``,
+        ``"exist_logits"``, ``"g_p"``, ``"g_c"``, ``"affinity"``) to the shape of its output.
+    """
+    import matplotlib.pyplot as plt
+
+    s = _traced_shapes(net, points)
+    sizes = {"B": points.shape[0], "N": points.shape[1], "M": net.config.num_cuboids}
+
+    def dims(name, axes):  # dims("affinity", "BNM") -> "(B, N, M)", after checking those axes' sizes
+        shape = s[name]
+        if [sizes[a] for a in axes] != list(shape[: len(axes)]):
+            raise AssertionError(f"{name} has shape {shape}, expected leading axes {axes} = {sizes}")
+        return "(" + ", ".join(list(axes) + [str(d) for d in shape[len(axes):]]) + ")"
+
+    fig, ax = plt.subplots(figsize=(14, 6.2))
+    ax.set(xlim=(-0.2, 21.4), ylim=(-0.9, 8.0))
+    ax.axis("off")
+    enc, cub, seg = "#dbe9f6", "#fde3c8", "#d9f0d3"
+
+    def box(x, y, text, color, w=2.2, h=1.1, size=9):
+        return _diagram_box(ax, x, y, text, color, w, h, size)
+
+    def arrow(a, b, label="", vertical=False):
+        _diagram_arrow(ax, a, b, label, vertical)
+
+    y1, y2, y3 = 7.0, 4.2, 1.4  # encoder, cuboid branch, segmentation branch
+    inp = box(0.9, y1, "input points\n$x$", "white", w=1.6)
+    e1 = box(3.7, y1, "EdgeConv 1\n(kNN in space)", enc, w=2.0)
+    e2 = box(6.9, y1, "EdgeConv 2\n(kNN in features)", enc, w=2.0)
+    fp = box(10.1, y1, "concatenate:\npoint features $f^p$", enc, w=2.1)
+    fg = box(13.6, y1, "shared layer,\nmax over points:\nglobal feature $f^g$", enc, h=1.3)
+    vae = box(17.3, y1, "VAE head (Eq. 1)\n$\\mu$, $\\log\\sigma^2$,\n$z = \\mu + \\sigma n$", enc, h=1.3)
+    arrow(inp, e1, dims("input", "BN"))
+    arrow(e1, e2, dims("edge1", "BN"))
+    arrow(e2, fp, dims("edge2", "BN"))
+    ax.annotate("", xy=(fp[0] - 0.5, y1 + 0.6), xytext=(e1[0], y1 + 0.6),
+                arrowprops=dict(arrowstyle="-|>", color="0.25", lw=1.0, connectionstyle="arc3,rad=-0.2"))
+    arrow(fp, fg, dims("point_features", "BN"))
+    arrow(fg, vae, dims("global_feature", "B"))
+
+    onehot = box(11.6, y2, "one-hot codes\n$v_1, \\dots, v_M$", cub, w=1.9)
+    ecb = box(14.3, y2, "$E_{cb}$:\ncuboid codes", cub, w=1.7)
+    ecf = box(17.3, y2, "$E_{cf}$: per-cuboid\nMLP on $[z;\\ E_{cb}(v_m)]$", cub, w=2.4)
+    arrow(onehot, ecb, dims("onehot", "M"))
+    arrow(ecb, ecf, dims("code", "M"))
+    arrow(vae, ecf, "$z$ " + dims("z", "B"), vertical=True)
+    heads = (("scale $s$", "half_sizes"), ("rotation $r$", "quaternions"), ("translation $t$", "centers"),
+             ("existence $\\delta$", "exist_logits"))
+    for i, (label, name) in enumerate(heads):  # D_cp: four heads on every cuboid feature
+        y = y2 + 1.15 - 0.77 * i
+        box(20.4, y, f"{label}\n{dims(name, 'BM')}", cub, w=1.7, h=0.62, size=8)
+        ax.annotate("", xy=(20.4 - 0.9, y), xytext=(ecf[0] + ecf[2] / 2 + 0.05, y2),
+                    arrowprops=dict(arrowstyle="-|>", color="0.25", lw=0.9))
+
+    gp = box(10.1, y3, "point projection\n$g^p$", seg)
+    aff = box(13.7, y3, "affinity (Eq. 2)\n$A = g^p \\cdot g^c$", seg)
+    gc = box(17.3, y3, "cuboid projection\n$g^c$", seg)
+    out = box(13.7, -0.35, "softmax over the cuboids (Eq. 3):\nallocation $W$ and segmentation", seg, w=3.6, h=0.9)
+    arrow(fp, gp, "$f^p$", vertical=True)
+    arrow(ecf, gc, "$f^c$ " + dims("cuboid_features", "BM"), vertical=True)
+    arrow(gp, aff, dims("g_p", "BN"))
+    arrow(gc, aff, dims("g_c", "BM"))
+    arrow(aff, out, dims("affinity", "BNM"), vertical=True)
+    for i, (text, color) in enumerate((("encoder $E_{pp}$ (Sec. 3.1)", enc), ("cuboid branch (Sec. 3.2)", cub),
+                                       ("segmentation branch (Sec. 3.3)", seg))):
+        box(2.6, 4.6 - 0.75 * i, text, color, w=4.2, h=0.55)
+    ax.text(0.5, 1.3, "B = {B} shapes, N = {N} points, M = {M} cuboids:\nshapes read from a forward pass".format(**sizes),
+            fontsize=9, va="center")
+    return fig, s
+
+
+#: Panels of :func:`plot_log`: column of log.csv -> (title, y-axis label, scale, log y-axis).
+LOG_PANELS: dict[str, tuple[str, str, float, bool]] = {
+    "total": ("total loss $L$", "loss", 1, True),
+    "reconstruction": ("$L_{recons}$", "loss", 1, True),
+    "compactness": (r"$L_{compact}$ (averaged)", "loss", 1, False),
+    "existence": ("$L_{exist}$", "cross-entropy", 1, False),
+    "kl": ("$L_{KL}$", "nats", 1, True),
+    "n_existing": (r"cuboids with $\delta_m > 0.5$", "cuboids", 1, False),
+    "saturated": ("saturated points", "% of the points", 100, False),
+    "affinity_gap": ("median affinity gap", "logit difference", 1, False),
+}
+
+
+def _column(rows, key: str) -> np.ndarray:
+    return np.array([float(r[key]) for r in rows])
+
+
+def plot_log(train_rows: Sequence[dict], val_rows: Sequence[dict], smooth: int = 10):
+    """The loss terms and diagnostics of a training log (``log.csv`` of :class:`cuboidlib.train.Trainer`).
+
+    One panel per entry of :data:`LOG_PANELS` (2 x 4): the training rows per step, their running mean over
+    ``smooth`` steps, and the validation rows. Integer quantities get integer ticks; one legend below the panels.
+
+    Args:
+        train_rows: the ``train`` rows of the log, dicts with ``step`` and every key of :data:`LOG_PANELS`
+            (as ``csv.DictReader`` returns them: strings are fine).
+        val_rows: the ``val`` rows, with the same keys.
+        smooth: width of the running mean, in steps (at least 1).
+
+    Returns:
+        A matplotlib ``Figure`` with 8 axes, each titled and with both axes labelled.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    if not isinstance(smooth, int) or smooth < 1:
+        raise ValueError(f"smooth must be a positive integer, got {smooth!r}")
+    steps, val_steps = _column(train_rows, "step"), _column(val_rows, "step")
+    fig, axes = plt.subplots(2, 4, figsize=(13, 5.8))
+    for ax, (key, (title, ylabel, scale, log_axis)) in zip(axes.flat, LOG_PANELS.items()):
+        v = scale * _column(train_rows, key)
+        ax.plot(steps, v, color=PALETTE[0], alpha=0.3, lw=0.8, label="train (per step)")
+        if len(v) >= smooth:
+            running = np.convolve(v, np.ones(smooth) / smooth, mode="valid")
+            ax.plot(steps[smooth - 1:], running, color=PALETTE[0], label=f"train (mean of {smooth} steps)")
+        ax.plot(val_steps, scale * _column(val_rows, key), "o-", color=PALETTE[1], ms=4, label="validation")
+        ax.set(title=title, xlabel="training step", ylabel=ylabel, yscale="log" if log_axis else "linear")
+        if key == "n_existing":
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=8)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig

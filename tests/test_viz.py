@@ -294,3 +294,38 @@ def test_figure_bundle_rejects_a_missing_twin_and_a_low_resolution():
         figure_bundle(go.Figure(), plt.figure(), dpi=72)
     with pytest.raises(TypeError, match="fig must be a plotly Figure"):
         figure_bundle(plt.figure(), plt.figure())
+
+
+def test_draw_network_reads_the_shapes_from_a_forward_pass():
+    from cuboidlib.model import CuboidAbstractionNet, ModelConfig
+    from cuboidlib.viz import draw_network
+
+    torch.manual_seed(0)
+    net = CuboidAbstractionNet(ModelConfig.small()).train()
+    fig, shapes = draw_network(net, torch.rand(2, 64, 3))
+    m = net.config.num_cuboids
+    assert len(fig.axes) == 1 and not fig.axes[0].axison
+    assert shapes["affinity"] == (2, 64, m) and shapes["quaternions"] == (2, m, 4)
+    assert shapes["point_features"][-1] == shapes["edge1"][-1] + shapes["edge2"][-1]
+    texts = " ".join(t.get_text() for t in fig.axes[0].texts)
+    assert "(B, N, M)" in texts and "EdgeConv 1" in texts and "B = 2 shapes, N = 64 points" in texts
+    assert net.training   # the training mode is restored
+    plt.close(fig)
+
+
+def test_plot_log_draws_one_labelled_panel_per_column():
+    from cuboidlib.viz import LOG_PANELS, plot_log
+
+    keys = ["step", *LOG_PANELS]
+    train = [{k: str(0.5 + 0.01 * s) if k != "step" else str(s) for k in keys} for s in range(1, 31)]
+    val = [dict(row) for row in train[9::10]]
+    fig = plot_log(train, val)
+    assert len(fig.axes) == len(LOG_PANELS) == 8
+    for ax, (title, ylabel, _, _) in zip(fig.axes, LOG_PANELS.values()):
+        assert ax.get_title() == title and ax.get_ylabel() == ylabel and ax.get_xlabel() == "training step"
+        assert len(ax.lines) == 3   # per step, running mean, validation
+    assert [t.get_text() for t in fig.legends[0].texts] == ["train (per step)", "train (mean of 10 steps)",
+                                                           "validation"]
+    with pytest.raises(ValueError, match="smooth must be a positive integer"):
+        plot_log(train, val, smooth=0)
+    plt.close("all")
