@@ -1,4 +1,4 @@
-"""Fixtures shared by the test modules that train networks."""
+"""Fixtures shared by several test modules."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from cuboidlib import kernels
+from cuboidlib.shapes import make_shape
 
 
 @pytest.fixture(autouse=True)
@@ -48,3 +49,9 @@ from hypothesis import settings  # noqa: E402
 settings.register_profile("repeatable", derandomize=True, database=None)
 settings.register_profile("explore", max_examples=500, database=None)
 settings.load_profile("repeatable")
+
+
+@pytest.fixture(scope="module")
+def chair():
+    """A procedural chair of 512 points (tests/test_hostile_inputs.py and test_hostile_files.py)."""
+    return make_shape("chair", 2, n_points=512)
