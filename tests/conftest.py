@@ -8,7 +8,10 @@ import pytest
 import torch
 
 from cuboidlib import kernels
+from cuboidlib.dataset import load_splits
 from cuboidlib.shapes import make_shape
+from cuboidlib.train_config import TrainConfig
+from tiny_run import TINY_MODEL
 
 
 @pytest.fixture(autouse=True)
@@ -55,3 +58,11 @@ settings.load_profile("repeatable")
 def chair():
     """A procedural chair of 512 points (tests/test_hostile_inputs.py and test_hostile_files.py)."""
     return make_shape("chair", 2, n_points=512)
+
+
+@pytest.fixture(scope="module")
+def tiny(cache_dir):
+    """(config, splits) of a tiny run: 20 chairs of 96 points, batch 4 (3 steps per epoch)."""
+    config = TrainConfig(category="chair", n_shapes=20, n_points=96, batch_size=4, max_steps=9, checkpoint_every=3,
+                         validate_every=4, num_threads=1, model=TINY_MODEL, seed=3)
+    return config, load_splits(config)

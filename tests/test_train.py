@@ -12,38 +12,17 @@ import pytest
 import torch
 
 import cuboidlib.train as train_module
-from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, load_model, save_checkpoint
+from cuboidlib.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
 from cuboidlib.cli import main
 from cuboidlib.dataset import load_splits, split_indices
 from cuboidlib.losses import LossConfig
 from cuboidlib.model import ModelConfig
 from cuboidlib.train import Trainer, TrainingDiverged, validation_loss
 from cuboidlib.train_config import TrainConfig
-
-# A network small enough for a step to take milliseconds; same structure as the paper's.
-TINY_MODEL = ModelConfig.small(num_cuboids=4, k=8, edge_dims=(8, 8), global_dim=16, latent_dim=8, cuboid_code_dim=8,
-                               cuboid_feature_dims=(16, 16), exist_hidden_dim=8, seg_dim=8)
+from tiny_run import TINY_MODEL, assert_same_state, weights
 
 
 pytestmark = pytest.mark.usefixtures("restore_threads")
-
-
-@pytest.fixture(scope="module")
-def tiny(cache_dir):
-    """(config, splits) of a tiny run: 20 chairs of 96 points, batch 4 (3 steps per epoch)."""
-    config = TrainConfig(category="chair", n_shapes=20, n_points=96, batch_size=4, max_steps=9, checkpoint_every=3,
-                         validate_every=4, num_threads=1, model=TINY_MODEL, seed=3)
-    return config, load_splits(config)
-
-
-def _weights(path):
-    return load_checkpoint(path)["model"]
-
-
-def _assert_same_state(a: dict, b: dict):
-    assert a.keys() == b.keys()
-    for k in a:
-        assert torch.equal(a[k], b[k]), f"{k} differs"
 
 
 # ------------------------------------------------------------------------------------- config
@@ -180,7 +159,7 @@ def test_model_selection_sees_only_the_validation_split(tmp_path, tiny, monkeypa
     assert not set(splits["val"].indices.tolist()) & set(splits["test"].indices.tolist())
 
 
-def test_validation_loss_is_a_deterministic_function_of_the_weights(tiny):
+def test_validation_loss_is_a_deterministic_function_of_theweights(tiny):
     config, splits = tiny
     torch.manual_seed(0)
     model = train_module.CuboidAbstractionNet(TINY_MODEL)
@@ -200,9 +179,9 @@ def test_resume_gives_bitwise_the_same_weights_as_an_uninterrupted_run(tmp_path,
     assert resumed.step == 5
     resumed.run()
     full, cut = load_checkpoint(tmp_path / "full" / "last.pt"), load_checkpoint(tmp_path / "cut" / "last.pt")
-    _assert_same_state(full["model"], cut["model"])
+    assert_same_state(full["model"], cut["model"])
     for a, b in zip(full["optimizer"]["state"].values(), cut["optimizer"]["state"].values()):
-        _assert_same_state(a, b)
+        assert_same_state(a, b)
     # Same loss terms at every step. The cut run also validated where it stopped (step 5), so its validation
     # rows are those of the full run plus that one.
     def without_seconds(name):  # every column but the wall-clock seconds
@@ -228,11 +207,11 @@ def test_a_run_saved_before_a_config_field_existed_resumes_with_its_default(tmp_
         Trainer(config.replace(temperature_steps=2), tmp_path, resume=True, quiet=True, splits=splits)
 
 
-def test_a_different_seed_gives_different_weights(tmp_path, tiny):
+def test_a_different_seed_gives_differentweights(tmp_path, tiny):
     config, splits = tiny
     Trainer(config.replace(max_steps=2), tmp_path / "a", quiet=True, splits=splits).run()
     Trainer(config.replace(max_steps=2, seed=4), tmp_path / "b", quiet=True, splits=splits).run()
-    a, b = _weights(tmp_path / "a" / "last.pt"), _weights(tmp_path / "b" / "last.pt")
+    a, b = weights(tmp_path / "a" / "last.pt"), weights(tmp_path / "b" / "last.pt")
     assert not torch.equal(a["segmentation.point_proj.weight"], b["segmentation.point_proj.weight"])
 
 
@@ -337,10 +316,10 @@ def test_selection_last_keeps_the_last_weights_even_when_the_loss_rises(tmp_path
 def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
     config, splits = tiny
     Trainer(config.replace(max_steps=3), tmp_path / "first", quiet=True, splits=splits).run()
-    first = _weights(tmp_path / "first" / "best.pt")
+    first = weights(tmp_path / "first" / "best.pt")
     second = Trainer(config.replace(init_from=str(tmp_path / "first" / "best.pt")), tmp_path / "second", quiet=True,
                      splits=splits)
-    _assert_same_state(first, {k: v for k, v in second.model.state_dict().items()})
+    assert_same_state(first, {k: v for k, v in second.model.state_dict().items()})
     with pytest.raises(CheckpointMismatch, match=r"init_from .*num_cuboids: checkpoint has 4, requested 5"):
         Trainer(config.replace(init_from=str(tmp_path / "first" / "best.pt"), model={"num_cuboids": 5}),
                 tmp_path / "third", quiet=True, splits=splits)
@@ -351,7 +330,7 @@ def test_init_from_starts_with_the_weights_of_another_run(tmp_path, tiny):
 def test_init_from_a_coordinates_only_run_may_start_reading_the_normals(tmp_path, tiny):
     config, splits = tiny
     Trainer(config.replace(max_steps=2), tmp_path / "first", quiet=True, splits=splits).run()
-    first = _weights(tmp_path / "first" / "best.pt")
+    first = weights(tmp_path / "first" / "best.pt")
     second = Trainer(config.replace(init_from=str(tmp_path / "first" / "best.pt"),
                                     model={"input_normals": "differences"}), tmp_path / "second", quiet=True,
                      splits=splits)
@@ -359,7 +338,7 @@ def test_init_from_a_coordinates_only_run_may_start_reading_the_normals(tmp_path
     key = "embedding.edge_convs.0.conv1.weight"
     torch.testing.assert_close(widened[key][:, [0, 1, 2, 6, 7, 8]], first[key], rtol=0, atol=0)
     assert widened[key][:, 3:6].abs().max() == 0
-    _assert_same_state({k: v for k, v in first.items() if k != key}, {k: v for k, v in widened.items() if k != key})
+    assert_same_state({k: v for k, v in first.items() if k != key}, {k: v for k, v in widened.items() if k != key})
     second.run()  # trains with the normals
     Trainer(config.replace(max_steps=2, model={"input_normals": "differences"}), tmp_path / "third", quiet=True,
             splits=splits).run()
@@ -373,11 +352,11 @@ def test_snapshots_are_the_weights_of_one_uninterrupted_run_and_a_second_call_re
     result, snaps = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
     assert sorted(snaps) == [0, 3, 6, 9] and result.step == 9
     fresh = Trainer(config.replace(max_steps=3), tmp_path / "three", quiet=True, splits=splits)
-    _assert_same_state(snaps[0], fresh.model.state_dict())  # step 0: the initial weights
+    assert_same_state(snaps[0], fresh.model.state_dict())  # step 0: the initial weights
     fresh.run()
-    _assert_same_state(snaps[3], _weights(tmp_path / "three" / "last.pt"))
+    assert_same_state(snaps[3], weights(tmp_path / "three" / "last.pt"))
     Trainer(config, tmp_path / "full", quiet=True, splits=splits).run()
-    _assert_same_state(snaps[9], _weights(tmp_path / "full" / "last.pt"))
+    assert_same_state(snaps[9], weights(tmp_path / "full" / "last.pt"))
     assert not torch.equal(snaps[3]["segmentation.point_proj.weight"], snaps[9]["segmentation.point_proj.weight"])
 
     def no_training(self):
@@ -387,7 +366,7 @@ def test_snapshots_are_the_weights_of_one_uninterrupted_run_and_a_second_call_re
     again, read_back = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
     assert again is None
     for step in snaps:
-        _assert_same_state(snaps[step], read_back[step])
+        assert_same_state(snaps[step], read_back[step])
 
 
 def test_snapshots_continue_an_interrupted_run_and_refuse_another_configuration(tmp_path, tiny):
@@ -396,7 +375,7 @@ def test_snapshots_continue_an_interrupted_run_and_refuse_another_configuration(
     result, snaps = train_module.train_with_snapshots(config, tmp_path / "s", (3, 6, 9), splits=splits)
     assert result.step == 9
     Trainer(config, tmp_path / "full", quiet=True, splits=splits).run()
-    _assert_same_state(snaps[9], _weights(tmp_path / "full" / "last.pt"))
+    assert_same_state(snaps[9], weights(tmp_path / "full" / "last.pt"))
     before = sorted(p.name for p in (tmp_path / "s").iterdir())
     with pytest.raises(FileExistsError, match="holds a run of another configuration"):
         train_module.train_with_snapshots(config.replace(lr=1e-3), tmp_path / "s", (3, 6, 9), splits=splits)
@@ -448,7 +427,7 @@ def test_time_budget_counts_the_earlier_sessions_of_a_resumed_run(tmp_path, tiny
     again = Trainer(config, tmp_path, resume=True, quiet=True, splits=splits).run()
     assert again.stopped == "time budget" and again.step == first.step  # the budget was used up: no step
     assert (tmp_path / "log.csv").read_text() == log  # nor a second validation of the same weights
-    _assert_same_state(load_checkpoint(tmp_path / "best.pt")["model"], weights)
+    assert_same_state(load_checkpoint(tmp_path / "best.pt")["model"], weights)
     longer = Trainer(config.replace(max_steps=first.step + 3, max_minutes=10.0), tmp_path, resume=True,
                      quiet=True, splits=splits).run()
     assert longer.stopped == "finished" and longer.step == first.step + 3
@@ -570,7 +549,7 @@ def test_sigkill_mid_run_then_resume_in_a_new_process_matches_an_uninterrupted_r
     done = subprocess.run(cmd + ["--resume"], env=_env(), capture_output=True, timeout=300)
     assert done.returncode == 0, done.stderr.decode()
     Trainer(config, tmp_path / "reference", quiet=True, splits=splits).run()
-    _assert_same_state(_weights(tmp_path / "reference" / "last.pt"), _weights(run / "last.pt"))
+    assert_same_state(weights(tmp_path / "reference" / "last.pt"), weights(run / "last.pt"))
 
 
 DDP_SCRIPT = """
@@ -619,7 +598,7 @@ def _run_two_ranks(command, attempts: int = 3):
 
 
 @pytest.mark.parametrize("centroids", [False, True], ids=["predicted centres", "centroid centres"])
-def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, centroids):
+def test_two_cpu_processes_with_ddp_end_with_identicalweights(tmp_path, tiny, centroids):
     # Two processes started with the variables torchrun sets (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR/PORT);
     # `torchrun --nproc_per_node=2 -m cuboidlib train ...` does the same through the command line. With centroid
     # centres (the committed recipe) the translation head receives no gradient, which DDP must be told.
@@ -632,10 +611,10 @@ def test_two_cpu_processes_with_ddp_end_with_identical_weights(tmp_path, tiny, c
     _run_two_ranks([sys.executable, str(tmp_path / "ddp.py"), str(cfg), str(out)])
     r0, r1 = (torch.load(out / f"rank{r}.pt", weights_only=True) for r in (0, 1))
     assert (r0["rank"], r1["rank"], r0["world"], r0["step"]) == (0, 1, 2, 4)
-    _assert_same_state(r0["params"], r1["params"])
+    assert_same_state(r0["params"], r1["params"])
     # Plain BatchNorm under DDP: running statistics are rank 0's at the start of every forward pass, then each rank
     # adds its own batch; checkpoints hold rank 0's.
-    _assert_same_state(r0["state"], _weights(out / "last.pt"))
+    assert_same_state(r0["state"], weights(out / "last.pt"))
     last = load_checkpoint(out / "last.pt")
     assert last["world_size"] == 2 and len(last["rng"]["loss"]) == 2
     assert not torch.equal(last["rng"]["loss"][0], last["rng"]["loss"][1])  # each rank samples its own offsets
@@ -691,222 +670,3 @@ def test_both_stages_in_one_torchrun_command_share_the_processes_and_the_card_sa
     assert card["machine"]["processes"] == 2
     assert card["command"].startswith("torchrun --nproc_per_node=2 -m cuboidlib train --config ")
     assert card["initialised_from"]["training"]["steps"] == 2 and card["training"]["steps"] == 2
-
-
-# -------------------------------------------------------------------------------------- release
-
-
-def test_cli_release_writes_a_slim_checkpoint_and_its_card(tmp_path, tiny, capsys, monkeypatch):
-    from cuboidlib.release import read_card
-
-    config, splits = tiny
-    cfg = config.replace(max_steps=4).save_json(tmp_path / "c.json")
-    dest = tmp_path / "published" / "chair.pt"
-    # the commit is read before the checkpoint is written (replacing a committed one would read as "+dirty")
-    monkeypatch.setattr("cuboidlib.release.git_commit", lambda: "written" if dest.exists() else "before")
-    argv = ["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--release", str(dest)]
-    before = time.time()
-    assert main(argv) == 0
-    command_seconds = time.time() - before
-    released = load_checkpoint(dest)
-    assert "optimizer" not in released and "rng" not in released
-    best = load_checkpoint(tmp_path / "run" / "best.pt")
-    assert released["step"] == best["step"] and released["config"] == best["config"]
-    _assert_same_state(released["model"], best["model"])
-    card = read_card(dest)
-    assert card["command"] == "cuboidlib " + " ".join(argv) and card["git_commit"] == "before"
-    assert card["config"] == best["config"]
-    assert card["training"]["steps"] == 4 and card["training"]["selected_step"] == best["step"]
-    assert card["training"]["selection"] == "lowest validation loss"
-    logged = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "train"]
-    assert card["training"]["seconds"] == round(float(logged[-1]["seconds"]), 1) >= 0  # a tiny run may round to 0.0
-    # the whole command, data and scoring included, up to the card
-    assert card["training"]["seconds"] + card["test"]["evaluation_seconds"] - 0.2 <= card["command_seconds"]
-    assert card["command_seconds"] <= command_seconds + 0.1
-    assert card["test"]["n_shapes"] == len(splits["test"])
-    validated = [row for row in csv.DictReader(open(tmp_path / "run" / "log.csv")) if row["split"] == "val"]
-    curve = card["training"]["validation"]
-    assert [e["step"] for e in curve] == [int(r["step"]) for r in validated] and curve
-    assert all(0 <= e["miou"] <= 1 and e["n_ac"] >= 0 and e["box_distance"] >= 0 for e in curve)
-    assert card["training"]["at_minutes"] == {}, "a run of seconds reaches none of the 15 / 30 / 60 minute marks"
-    network, baseline = card["test"]["results"]
-    assert network["method"].startswith("network") and baseline["method"].startswith("k-means boxes")
-    assert baseline["num_cuboids"] == max(1, round(network["n_ac"]))
-    for row in (network, baseline):
-        assert row["chamfer"][0]["value"] > 0 and 0 <= row["miou"] <= 1
-        assert row["box_distance"] >= 0 and set(row["part_iou"]) == set(splits["test"].part_names)
-    assert 0 <= network["reassigned"] <= 1 and baseline["reassigned"] is None
-    assert "squared L2" in card["test"]["table"]
-    from cuboidlib.release import cards_markdown
-
-    header, _, row = cards_markdown([dest]).splitlines()
-    cells = [c.strip() for c in row.strip("|").split("|")]
-    assert header.endswith("| N_AC | box distance |") and len(cells) == 9
-    assert cells[0] == "`chair.pt`" and cells[-2:] == [f"{network['n_ac']:.2f}", f"{network['box_distance']:.4f}"]
-    header, _, row = cards_markdown([dest], short=True).splitlines()
-    cells = [c.strip() for c in row.strip("|").split("|")]
-    assert header.startswith("| network | M |") and len(cells) == 5
-    assert cells[0] == "chair" and cells[2].startswith(f"{1000 * network['chamfer'][0]['value']:.2f} / ")
-    assert cells[3] == f"{100 * network['miou']:.1f} / {100 * baseline['miou']:.1f}" and cells[4] == f"{network['n_ac']:.2f}"
-
-
-def test_card_of_a_two_stage_recipe_holds_both_stages(tmp_path, tiny, capsys):
-    from cuboidlib.release import read_card
-
-    config, _ = tiny
-    first = config.replace(max_steps=3).save_json(tmp_path / "first.json")
-    assert main(["train", "--config", str(first), "--out", str(tmp_path / "stage1"), "--quiet"]) == 0
-    second = config.replace(max_steps=2, lr_schedule="cosine", init_from=str(tmp_path / "stage1" / "best.pt"))
-    dest = tmp_path / "chair.pt"
-    assert main(["train", "--config", str(second.save_json(tmp_path / "second.json")), "--out", str(tmp_path / "stage2"),
-                 "--quiet", "--release", str(dest)]) == 0
-    card = read_card(dest)
-    earlier = card["initialised_from"]
-    assert earlier["checkpoint"] == str(tmp_path / "stage1" / "best.pt")
-    assert earlier["config"]["max_steps"] == 3 and earlier["training"]["steps"] == 3
-    assert card["config"]["init_from"] == earlier["checkpoint"] and card["training"]["steps"] == 2
-
-
-def test_finetune_runs_both_stages_in_one_command_as_two_commands_would(tmp_path, tiny):
-    from cuboidlib.release import read_card
-    from cuboidlib.train import FINETUNE_DIR
-
-    config, _ = tiny
-    first = config.replace(max_steps=3).save_json(tmp_path / "first.json")
-    second = config.replace(max_steps=2, lr_schedule="cosine", model={"affinity_temperature": 5},
-                            init_from="elsewhere/best.pt").save_json(tmp_path / "second.json")
-    # two commands: the second stage told where the first one's weights are
-    assert main(["train", "--config", str(first), "--out", str(tmp_path / "a"), "--quiet"]) == 0
-    assert main(["train", "--config", str(second), "--out", str(tmp_path / "b"), "--quiet",
-                 "--set", f"init_from={json.dumps(str(tmp_path / 'a' / 'best.pt'))}"]) == 0
-    # one command
-    dest = tmp_path / "chair.pt"
-    assert main(["train", "--config", str(first), "--finetune", str(second), "--out", str(tmp_path / "one"), "--quiet",
-                 "--release", str(dest)]) == 0
-    _assert_same_state(_weights(tmp_path / "a" / "best.pt"), _weights(tmp_path / "one" / "best.pt"))
-    _assert_same_state(_weights(tmp_path / "b" / "best.pt"), _weights(tmp_path / "one" / FINETUNE_DIR / "best.pt"))
-    card = read_card(dest)
-    assert card["initialised_from"]["checkpoint"] == str(tmp_path / "one" / "best.pt")
-    assert card["initialised_from"]["training"]["steps"] == 3 and card["training"]["steps"] == 2
-    assert card["config"]["model"]["affinity_temperature"] == 5
-    assert card["machine"]["processes"] == 1 and card["command"].startswith("cuboidlib train --config")
-    # --resume after the second stage has begun continues it and leaves the first alone
-    first_log = (tmp_path / "one" / "log.csv").read_text()
-    assert main(["train", "--config", str(first), "--finetune", str(second), "--out", str(tmp_path / "one"), "--quiet",
-                 "--resume"]) == 0
-    assert (tmp_path / "one" / "log.csv").read_text() == first_log
-
-
-def test_finetune_trains_on_the_first_stages_shapes(tmp_path, tiny, capsys):
-    config, _ = tiny
-    first = config.replace(max_steps=1).save_json(tmp_path / "first.json")
-    # data and device flags apply to both stages; data fields the second file leaves out are the first stage's
-    partial = tmp_path / "partial.json"
-    second = {"max_steps": 1, "lr": 1e-3, "batch_size": 4, "model": config.model, "loss": config.loss}
-    partial.write_text(json.dumps(second))
-    out = tmp_path / "run"
-    assert main(["train", "--config", str(first), "--finetune", str(partial), "--out", str(out), "--quiet",
-                 "--data-seed", "3", "--threads", "1"]) == 0
-    stages = [TrainConfig.load_json(out / "config.json"), TrainConfig.load_json(out / "finetune" / "config.json")]
-    for stage in stages:
-        assert stage.data_seed == 3 and stage.num_threads == 1 and stage.n_shapes == config.n_shapes
-    assert stages[1].n_points == config.n_points != TrainConfig().n_points and stages[1].lr == 1e-3
-    # a second file that selects other shapes is refused before anything is trained
-    other = config.replace(n_points=config.n_points + 8).save_json(tmp_path / "other.json")
-    assert main(["train", "--config", str(first), "--finetune", str(other), "--out", str(tmp_path / "x")]) == 2
-    err = capsys.readouterr().err
-    assert "must train on the first stage's shapes" in err
-    assert f"n_points {config.n_points} / {config.n_points + 8}" in err
-    assert not (tmp_path / "x").exists()
-    # --set changes the first stage only, so it cannot make the two stages' shapes differ unnoticed
-    assert main(["train", "--config", str(first), "--finetune", str(first), "--out", str(tmp_path / "x"),
-                 "--set", "n_shapes=12"]) == 2
-    assert "n_shapes 12 / " in capsys.readouterr().err and not (tmp_path / "x").exists()
-
-
-def test_release_of_a_centroid_network_fits_its_translation_head(tmp_path, tiny):
-    from cuboidlib.release import read_card, translation_head_error
-
-    config, splits = tiny
-    config = config.replace(loss=LossConfig.authors_code().to_dict(), max_steps=6)
-    cfg = config.save_json(tmp_path / "c.json")
-    dest = tmp_path / "chair.pt"
-    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--release", str(dest)]) == 0
-    card = read_card(dest)
-    fit = card["translation_head"]
-    assert fit["rms_error_validation_after"] < fit["rms_error_validation_before"]
-    released, _ = load_model(dest)
-    error = translation_head_error(released, splits["val"].points)
-    assert error == pytest.approx(fit["rms_error_validation_after"], abs=1e-5), "the released head is the fitted one"
-    best = load_checkpoint(tmp_path / "run" / "best.pt")["model"]
-    changed = [k for k, v in released.state_dict().items() if not torch.equal(v, best[k])]
-    assert sorted(changed) == ["abstraction.D_cp.translation.bias", "abstraction.D_cp.translation.weight"]
-
-
-def test_a_network_that_reads_normals_trains_releases_and_abstracts_a_file(tmp_path, tiny):
-    # ModelConfig.input_normals end to end: training, validation, the translation-head fit and the
-    # test evaluation of the release, then the one pipeline on a mesh file (normals from the file).
-    import cuboidlib
-    from cuboidlib.release import publish_run, read_card, translation_head_error
-
-    config, splits = tiny
-    model = {**TINY_MODEL.to_dict(), "input_normals": "differences"}
-    config = config.replace(model=model, loss=LossConfig.authors_code().to_dict(), max_steps=6)
-    cfg = config.save_json(tmp_path / "c.json")
-    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet"]) == 0
-    # a tiny network after 6 steps may switch every cuboid off; the release needs existing ones
-    best = tmp_path / "run" / "best.pt"
-    state = torch.load(best, weights_only=True)
-    bias = [k for k in state["model"] if k.startswith("abstraction.D_cp.existence.") and k.endswith(".bias")][-1]
-    state["model"][bias].fill_(5.0)
-    torch.save(state, best)
-    dest = tmp_path / "chair.pt"
-    publish_run(tmp_path / "run", dest, command="cuboidlib train (test)")
-    card = read_card(dest)
-    assert card["config"]["model"]["input_normals"] == "differences"
-    released, _ = load_model(dest)
-    assert released.embedding.edge_convs[0].conv1.in_features == 9
-    error = translation_head_error(released, splits["val"].points, splits["val"].normals)
-    assert error == pytest.approx(card["translation_head"]["rms_error_validation_after"], abs=1e-5)
-    with pytest.raises(ValueError, match="reads each point's normal"):
-        translation_head_error(released, splits["val"].points)
-    mesh = Path(__file__).resolve().parents[1] / "data_samples" / "meshes" / "chair_0.ply"
-    for up in ("y", None, "auto"):  # as given, with the orientation check, and in all 24 frames
-        result = cuboidlib.abstract(mesh, model=dest, n_points=96, up=up)
-        assert result.labels.shape == (96,) and result.numpy()["centers"].shape[1] == 3
-
-
-def test_cli_release_refuses_a_bad_file_name_before_training(tmp_path, tiny, capsys):
-    config, _ = tiny
-    cfg = config.replace(max_steps=2).save_json(tmp_path / "c.json")
-    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--release", "x.json"]) == 2
-    assert "must end in .pt" in capsys.readouterr().err
-    assert not (tmp_path / "run").exists()
-    blocker = tmp_path / "file"
-    blocker.write_text("a file where the release folder should be")
-    release = str(blocker / "net.pt")
-    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "run"), "--release", release]) == 2
-    assert f"--release {release}: cannot write there" in capsys.readouterr().err
-    assert not (tmp_path / "run").exists()
-
-
-def test_read_card_rejects_missing_and_foreign_files(tmp_path):
-    from cuboidlib.release import read_card
-
-    with pytest.raises(FileNotFoundError, match="no checkpoint card"):
-        read_card(tmp_path / "none.pt")
-    (tmp_path / "x.json").write_text('{"a": 1}')
-    with pytest.raises(ValueError, match="not a cuboidlib checkpoint card"):
-        read_card(tmp_path / "x.pt")
-
-
-def test_course_config_is_the_committed_recipe():
-    from cuboidlib.train_config import course_config
-
-    for category in ("airplane", "chair", "table", "animal"):
-        config = course_config(category)
-        assert config.category == category
-        assert config == TrainConfig.load_json(Path(__file__).parents[1] / f"data_samples/checkpoints/configs/{category}.json")
-    assert course_config("chair", max_minutes=5, loss={"lambda_compact": 0.5}).loss_config.lambda_compact == 0.5
-    with pytest.raises(ValueError, match="no committed recipe for 'lamp'"):
-        course_config("lamp")
