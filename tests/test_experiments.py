@@ -25,6 +25,7 @@ EXPERIMENTS = ROOT / "experiments"
 sys.path.insert(0, str(EXPERIMENTS))
 
 import ablations  # noqa: E402
+import lesson_tables  # noqa: E402
 import airplane_engines  # noqa: E402
 import fig8_supervision as fig8  # noqa: E402
 import fig9_nearest_surface as fig9  # noqa: E402
@@ -878,3 +879,64 @@ def test_every_committed_15_minute_record_is_read():
     committed = {p.parent.name for p in ablations.RUNS_15MIN.glob("*/*/*/record.json")}
     read = {r["name"] for t in ablations.ABLATIONS for r in ablations.read_records(t)}
     assert read == committed
+
+
+# ----------------------------------------------------------------------------------------------
+# Lesson 08's display helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def test_lesson_tables_format_a_table_as_aligned_text_and_escaped_html():
+    text = lesson_tables.table_text(["name", "x"], [["a", 1.5], ["long name", 10]])
+    assert text.splitlines() == ["name         x", "a          1.5", "long name   10"]
+    page = lesson_tables.table_html(["a<b", "x"], [["1", "2"]])
+    assert page == "<table><tr><th>a&lt;b</th><th>x</th></tr><tr><td>1</td><td>2</td></tr></table>"
+
+
+def test_lesson_tables_read_one_cell_and_its_seeds_range():
+    result = {"summary": [{"M": 8, "cd_mean": 0.5}, {"M": 12, "cd_mean": 0.25}],
+              "runs": [_record(f"m{s}", {"M": 8, "seed": s}, cd=0.4 + s / 10) for s in range(3)]}
+    assert lesson_tables.value(result, "cd", M=12) == 0.25
+    with pytest.raises(ValueError, match="matches 0"):
+        lesson_tables.value(result, "cd", M=16)
+    assert lesson_tables.seeds(result, "cd", M=8) == pytest.approx([0.4, 0.5, 0.6])
+    assert lesson_tables.span([0.4, 0.6, 0.5], 1000, 1) == "400.0 to 600.0" and lesson_tables.span([]) == "-"
+
+
+def test_lesson_tables_write_the_verdicts_in_words():
+    holds, fails = {"verdict": "holds"}, {"verdict": "fails"}
+    open_ = {"verdict": "unresolved at three seeds"}
+    assert lesson_tables.verdict_sentence([("A", holds), ("B", fails), ("C", open_), ("D", open_)]) == (
+        "By the rule, A holds. The seeds lie apart the other way in B: that test fails. "
+        "Of the other tests, 2 are unresolved at three seeds.")
+    assert lesson_tables.verdict_sentence([("A", holds), ("B", holds)]) == "By the rule, A and B hold."
+    assert lesson_tables.verdict_sentence([("A", open_)]).startswith("No test holds by the rule.")
+    grouped = [("cd: a < b", "chairs", holds), ("cd: a < c", "airplanes", fails), ("cd: a < c", "tables", fails)]
+    assert lesson_tables.verdict_sentence(grouped) == (
+        "By the rule, cd: a < b on chairs holds. The seeds lie apart the other way in cd: a < c on airplanes and tables: "
+        "those tests fail.")
+
+
+def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_finish(tmp_path):
+    low, high, mid = [1.0, 1.1, 1.2], [2.0, 2.1, 2.2], [1.15, 2.5, 3.0]
+    complete = _table3_records({"P2C-Seg": low, "P2C-Dis": high, "Chamfer-Dis": mid},
+                               {"P2C-Seg": high, "P2C-Dis": low, "Chamfer-Dis": [2.5, 2.6, 2.7]})
+    tests = ablations.TESTS["table3"]
+    assert lesson_tables.all_pending(tests, [])
+    assert lesson_tables.verdict_line(tests, []) == (
+        "**Verdict at the 15-minute scale:** P2C-Seg gives the lowest Chamfer distance: *pending (0 of 9 runs)*; "
+        "P2C-Seg gives the highest mIoU: *pending (0 of 9 runs)*.")
+    header, rows, line = lesson_tables.fifteen_rows("table3", complete[3:], [("cd", 1, 2, "CD")], complete)
+    assert header == ["variant", "seeds", "CD, 15 min", "CD, 600 steps"]
+    assert [row[:2] for row in rows] == [["P2C-Dis", "3 of 3"], ["Chamfer-Dis", "3 of 3"]]
+    assert line == "finished: 6 of 9 runs; pending: P2C-Seg (3 of 3 seeds)"
+    assert not lesson_tables.all_pending(tests, complete)
+    assert "*unresolved at three seeds*" in lesson_tables.verdict_line(tests, complete)
+
+
+def test_lesson_tables_list_the_fields_where_two_configurations_differ():
+    a = {"steps": 600, "loss": {"lambda": 0.1, "form": "averaged"}, "seed": 0}
+    b = {"steps": 2500, "loss": {"lambda": 0.1, "form": "sum"}, "seed": 0, "finetune": 500}
+    assert lesson_tables.config_differences(a, b) == [("steps", 600, 2500), ("loss.form", "averaged", "sum"),
+                                                     ("finetune", None, 500)]
+
