@@ -165,6 +165,8 @@ def test_notebook_has_the_course_form(nb_path):
     assert any(h.lstrip().startswith("## exercises") for h in headings), f"{nb_path.name}: no '## Exercises' section"
     code = "\n".join(_source(c) for c in cells if c["cell_type"] == "code")
     assert "sys.path" not in code, f"{nb_path.name}: import cuboidlib as an installed package, not via sys.path"
+    for folder in re.findall(r"addsitedir\((.*)\)", code):  # only the experiment scripts, which are not a package
+        assert "experiments" in folder, f"{nb_path.name}: addsitedir({folder}) may add only experiments/"
     checked = [c for c in cells if "nbval-check-output" in c.get("metadata", {}).get("tags", [])]
     assert checked, f"{nb_path.name}: no cell is tagged nbval-check-output, so nbval checks no printed output"
     assert "NBVAL_" not in code, f"{nb_path.name}: mark checked cells with the nbval-check-output tag, not a comment"

@@ -1,0 +1,251 @@
+"""Display helpers of lesson 08: read the committed results, print tables, and write verdicts in words.
+
+Lesson 08 puts ``experiments/`` on ``sys.path`` and imports this module in its first code cell, so the lesson's
+cells hold the experiments and not the plumbing. Every verdict comes from :mod:`ablations` (the rule and the
+tests); this module only reads values and formats them.
+
+* :func:`load_results` reads ``results/<name>.json``; :func:`value`, :func:`seeds` and :func:`span` read one cell.
+* :func:`table_text` and :func:`table_html` format a table; :func:`show_table` displays both forms.
+* :func:`show_verdicts` prints every test's verdict at each scale; :func:`verdict_sentence` and
+  :func:`verdict_line` turn verdicts into a sentence, so that the lesson's prose cannot go stale.
+* :func:`fifteen_rows` and :func:`show_fifteen` give a 15-minute table: the finished cells and what is pending.
+* :func:`config_differences` lists the fields where two run configurations differ.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import statistics
+from pathlib import Path
+from typing import Sequence
+
+import ablations
+import runner
+
+#: The committed results files that lesson 08 reads.
+RESULT_NAMES = ("table1_2_comparison", "table3_supervision", "table4_distance", "table5_compactness",
+                "table5_compactness_15min", "table6_num_cuboids", "fig8_supervision", "fig9_nearest_surface",
+                "fig10_compactness", "fig11_point_density", "paper_vs_code")
+
+
+def load_results(results_dir: str | Path = runner.RESULTS_DIR, names: Sequence[str] = RESULT_NAMES) -> dict:
+    """name -> the parsed ``<results_dir>/<name>.json`` of each name."""
+    return {name: json.loads((Path(results_dir) / f"{name}.json").read_text()) for name in names}
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading one cell
+# ----------------------------------------------------------------------------------------------
+
+
+def value(result: dict, metric: str, **where) -> float:
+    """The mean of ``metric`` in a results file's summary, on the one row whose fields match ``where``."""
+    rows = [r for r in result["summary"] if all(r.get(k) == v for k, v in where.items())]
+    if len(rows) != 1:
+        raise ValueError(f"{where} matches {len(rows)} summary rows, not one")
+    return rows[0][f"{metric}_mean"]
+
+
+def seeds(result_or_runs: dict | Sequence[dict], metric: str, **where) -> list[float]:
+    """The metric of every run (seed) of one cell, from a results file or a list of run records."""
+    runs = result_or_runs["runs"] if isinstance(result_or_runs, dict) else result_or_runs
+    return ablations.cell_values(runs, where, metric)
+
+
+def span(xs: Sequence[float], scale: float = 1.0, digits: int = 2) -> str:
+    """A cell's lowest and highest seed, "1.00 to 1.20" (the range the rule compares); "-" when there is none."""
+    return f"{scale * min(xs):.{digits}f} to {scale * max(xs):.{digits}f}" if xs else "-"
+
+
+# ----------------------------------------------------------------------------------------------
+# Tables
+# ----------------------------------------------------------------------------------------------
+
+
+def table_text(header: Sequence, rows: Sequence[Sequence]) -> str:
+    """The table as aligned text: the first column left-aligned, the others right-aligned."""
+    cells = [[str(x) for x in row] for row in [header, *rows]]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(header))]
+    lines = []
+    for row in cells:
+        first, *rest = zip(row, widths)
+        lines.append("  ".join([first[0].ljust(first[1]), *(x.rjust(w) for x, w in rest)]))
+    return "\n".join(lines)
+
+
+def table_html(header: Sequence, rows: Sequence[Sequence]) -> str:
+    """The table as an HTML ``<table>``, every cell escaped."""
+    def line(row, tag):
+        return "<tr>" + "".join(f"<{tag}>{html.escape(str(x))}</{tag}>" for x in row) + "</tr>"
+    return "<table>" + line(header, "th") + "".join(line(row, "td") for row in rows) + "</table>"
+
+
+def show_table(header: Sequence, rows: Sequence[Sequence]) -> None:
+    """Display a table in two forms: HTML for Jupyter and GitHub, aligned text for a terminal (and nbval)."""
+    from IPython.display import display
+    display({"text/html": table_html(header, rows), "text/plain": table_text(header, rows)}, raw=True)
+
+
+def show_markdown(text: str) -> None:
+    """Display a computed sentence as Markdown (its text form is the same string)."""
+    from IPython.display import Markdown, display
+    display(Markdown(text))
+
+
+def legend_below(fig, ax, ncol: int = 4) -> None:
+    """One legend for the whole figure, under its panels, where it hides no data."""
+    fig.legend(*ax.get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
+               frameon=False, fontsize=9)
+
+
+def plain_log(ax) -> None:
+    """A log y-axis labelled 1, 2, 5, 10, ... instead of 10^0 and 4x10^0."""
+    from matplotlib.ticker import FuncFormatter
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
+
+
+# ----------------------------------------------------------------------------------------------
+# Verdicts in words
+# ----------------------------------------------------------------------------------------------
+
+
+def said(v: dict) -> str:
+    """A verdict in a table's words; an unresolved one says why ("unresolved at three seeds: the seeds overlap")."""
+    return ablations.word(v) + (f": {v['why']}" if v["verdict"] == "unresolved at three seeds" else "")
+
+
+def show_verdicts(tests: Sequence[ablations.Test], **scales: Sequence[dict]) -> dict[str, list[dict]]:
+    """Display the verdict of every test at each scale (scale name -> its run records); return them by scale."""
+    found = {scale: [ablations.verdict(t, runs) for t in tests] for scale, runs in scales.items()}
+    header = ["test", *[scale.replace("_", " ") for scale in scales]]
+    rows = [[ablations.describe(t), *[said(found[scale][i]) for scale in scales]] for i, t in enumerate(tests)]
+    show_table(header, rows)
+    return found
+
+
+def _join(items: Sequence[str]) -> str:
+    items = list(items)
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def verdict_sentence(verdicts: Sequence[tuple]) -> str:
+    """Which tests hold and which fail, in one to three sentences, from (label, verdict) or (label, where, verdict).
+
+    The label names the test ("cd: P2C-Seg < P2C-Dis"); ``where`` names the cell it ran on ("chairs"), and one test
+    that passes in several places is named once ("... on airplanes and tables"). Tests that hold come first, then
+    those that fail; the rest are counted by verdict. Written from the verdicts, the sentence changes with them.
+    """
+    groups: dict[str, dict[str, list[str]]] = {}  # verdict -> label -> wheres
+    for item in verdicts:
+        label, where, v = item if len(item) == 3 else (item[0], None, item[1])
+        groups.setdefault(v["verdict"], {}).setdefault(label, []).extend([where] if where else [])
+
+    def named(word: str) -> tuple[str, int]:
+        found = groups.get(word, {})
+        items = [f"{label} on {_join(wheres)}" if wheres else label for label, wheres in found.items()]
+        return (_join(items) if items else ""), sum(max(len(w), 1) for w in found.values())
+
+    holds, n_holds = named("holds")
+    fails, n_fails = named("fails")
+    parts = [f"By the rule, {holds} {'holds' if n_holds == 1 else 'hold'}." if holds else "No test holds by the rule."]
+    if fails:
+        parts.append(f"The seeds lie apart the other way in {fails}: {'that test fails' if n_fails == 1 else 'those tests fail'}.")
+    rest = {w: sum(max(len(x), 1) for x in found.values()) for w, found in groups.items() if w not in ("holds", "fails")}
+    if rest:
+        counted = [f"{n} {'is' if n == 1 and i == 0 else 'are' if i == 0 else ''} {w}".replace("  ", " ")
+                   for i, (w, n) in enumerate(rest.items())]
+        parts.append(f"Of the other tests, {_join(counted)}.")
+    return " ".join(parts)
+
+
+def verdict_line(tests: Sequence[ablations.Test], records: Sequence[dict], scale: str = "the 15-minute scale") -> str:
+    """The verdict of each of the tests' claims, in one Markdown line computed from the records:
+    "**Verdict at the 15-minute scale:** <claim>: <verdict>; ..." (a pending claim counts its runs)."""
+    judged = ablations.judge(tests, records)
+    return f"**Verdict at {scale}:** " + "; ".join(f"{claim}: *{word}*" for claim, word in judged.items()) + "."
+
+
+def all_pending(tests: Sequence[ablations.Test], records: Sequence[dict]) -> bool:
+    """True when every test still waits for runs (no verdict is a result yet)."""
+    return all(ablations.verdict(t, records)["verdict"] == "pending" for t in tests)
+
+
+# ----------------------------------------------------------------------------------------------
+# The 15-minute tables
+# ----------------------------------------------------------------------------------------------
+
+
+_NOT_SHOWN = ("finished", "planned", "category", "distance")  # the same in every cell of the 15-minute tables
+
+
+def _cell(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k not in ("finished", "planned")}
+
+
+def _name(row: dict) -> str:
+    return ", ".join(v if isinstance(v, str) else f"{k} {v:g}" for k, v in row.items() if k not in _NOT_SHOWN)
+
+
+def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[str, float, int, str]],
+                 first_look: Sequence[dict]) -> tuple[list[str], list[list[str]], str]:
+    """A 15-minute table: (header, one row per cell with a finished seed, a line on what is finished and pending).
+
+    Args:
+        table: "table3", "table4" or "table6".
+        records: its finished 15-minute records (:func:`ablations.read_records`).
+        metrics: (metric, scale, digits, label) of each column; each cell gives its seeds' range.
+        first_look: the 600-step runs of the same cells; the first metric's 600-step mean closes each row.
+    """
+    rows = ablations.cells(table, records)
+    keys = [k for k in rows[0] if k not in _NOT_SHOWN]
+    metric, scale, digits, label = metrics[0]
+    header = [*keys, "seeds", *[f"{m[3]}, 15 min" for m in metrics], f"{label}, 600 steps"]
+    body = []
+    for row in rows:
+        if not row["finished"]:
+            continue
+        ranges = [span(seeds(records, m, **_cell(row)), s, d) for m, s, d, _ in metrics]
+        first = statistics.mean(seeds(first_look, metric, **_cell(row)))
+        body.append([*(row[k] for k in keys), f"{row['finished']} of {row['planned']}", *ranges,
+                     f"{scale * first:.{digits}f}"])
+    waiting = [f"{_name(row)} ({row['planned'] - row['finished']} of {row['planned']} seeds)"
+               for row in rows if row["finished"] < row["planned"]]
+    line = f"finished: {len(records)} of {len(ablations.planned_runs(table))} runs"
+    if waiting:
+        line += "; pending: " + ("every cell" if len(waiting) == len(rows) else "; ".join(waiting))
+    return header, body, line
+
+
+def show_fifteen(table: str, records: Sequence[dict], metrics: Sequence[tuple[str, float, int, str]],
+                 first_look: Sequence[dict]) -> None:
+    """Display :func:`fifteen_rows`: the table when a cell has a finished seed, then the line on what is pending."""
+    header, body, line = fifteen_rows(table, records, metrics, first_look)
+    if body:
+        show_table(header, body)
+    print(line)
+
+
+# ----------------------------------------------------------------------------------------------
+# Records
+# ----------------------------------------------------------------------------------------------
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def config_differences(a: dict, b: dict) -> list[tuple[str, object, object]]:
+    """(field, a's value, b's value) for every field where two nested configurations differ, in a's order
+    ("loss.lambda_compact"); a field missing on one side reads None there."""
+    fa, fb = _flatten(a), _flatten(b)
+    fields = [*fa, *(k for k in fb if k not in fa)]
+    return [(k, fa.get(k), fb.get(k)) for k in fields if fa.get(k) != fb.get(k)]
