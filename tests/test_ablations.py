@@ -1,0 +1,236 @@
+"""Tests of the 15-minute ablations' verdicts (experiments/ablations.py) and lesson 08's tables
+(experiments/lesson_tables.py): the rule that decides a difference, the tests stated before the runs, and how
+finished and pending runs are read and shown."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = ROOT / "experiments"
+sys.path.insert(0, str(EXPERIMENTS))
+
+import ablations  # noqa: E402
+import lesson_tables  # noqa: E402
+import table5_compactness as table5  # noqa: E402
+import table6_num_cuboids as table6  # noqa: E402
+
+
+# ----------------------------------------------------------------------------------------------
+# The 15-minute ablations: reading the finished runs and the tests stated before them
+# ----------------------------------------------------------------------------------------------
+
+
+def _record(name: str, key: dict, **metrics) -> dict:
+    return {"name": name, "key": key, "status": "ok", "results": [{"method": "network", "metrics": metrics}]}
+
+
+def _write_records(root: Path, table: str, stamp: str, records: list[dict]) -> None:
+    folder = root / f"{ablations.ABLATIONS[table][0].EXPERIMENT.name}_15min" / stamp
+    for record in records:
+        (folder / record["name"]).mkdir(parents=True)
+        (folder / record["name"] / "record.json").write_text(json.dumps(record))
+
+
+def _table3_records(cd: dict, miou: dict) -> list[dict]:
+    """Chair records of Table 3: cd / miou give each variant's three seeds."""
+    return [_record(f"chair_{v}_seed{s}", {"category": "chair", "variant": v, "seed": s}, cd=cd[v][s], miou=miou[v][s])
+            for v in cd for s in range(3)]
+
+
+def test_the_ablation_options_are_those_of_the_shell_script():
+    script = (EXPERIMENTS / "ablations_15min.sh").read_text()
+    for table, (module, options) in ablations.ABLATIONS.items():
+        line = next(l for l in script.splitlines() if l.strip().startswith(f"{table})"))
+        assert f"python {module.EXPERIMENT.name}.py {' '.join(options)} " in line, table
+    common = next(l for l in script.splitlines() if l.startswith("common=("))
+    assert " ".join(ablations.COMMON) in common
+    counts = {t: len(ablations.planned_runs(t)) for t in ablations.ABLATIONS}
+    assert counts == {"table3": 9, "table4": 12, "table6": 15}, "the README's 9, 12 and 15 runs"
+
+
+def test_the_rule_needs_every_seed_of_one_cell_below_every_seed_of_the_other():
+    assert ablations.apart([1, 2, 3], [4, 5, 6]) == -1
+    assert ablations.apart([4, 5, 6], [1, 2, 3]) == 1
+    assert ablations.apart([1, 2, 5], [4, 5, 6]) == 0, "one seed in the other's range"
+    assert ablations.apart([1, 2, 4], [4, 5, 6]) == 0, "a tie is an overlap"
+    with pytest.raises(ValueError, match="both cells need values"):
+        ablations.apart([], [1.0])
+
+
+def test_table3_verdicts_from_partial_and_complete_records(tmp_path):
+    low, high, mid = [1.0, 1.1, 1.2], [2.0, 2.1, 2.2], [1.15, 2.5, 3.0]
+    complete = _table3_records({"P2C-Seg": low, "P2C-Dis": high, "Chamfer-Dis": mid},
+                               {"P2C-Seg": high, "P2C-Dis": low, "Chamfer-Dis": [2.5, 2.6, 2.7]})
+    _write_records(tmp_path, "table3", "20260101-000000-000000", complete[3:])  # P2C-Seg's seeds not finished yet
+    partial = ablations.read_records("table3", tmp_path)
+    assert [c["finished"] for c in ablations.cells("table3", partial)] == [3, 3, 0]
+    verdicts = [ablations.verdict(t, partial) for t in ablations.TESTS["table3"]]
+    assert {(v["verdict"], v["why"]) for v in verdicts} == {("pending", "3 of 6 runs finished")}
+    assert {ablations.word(v) for v in verdicts} == {"pending (3 of 6 runs)"}, "not a result: no runs of P2C-Seg yet"
+    assert set(ablations.judge(ablations.TESTS["table3"], partial).values()) == {"pending (6 of 9 runs)"}
+
+    _write_records(tmp_path, "table3", "20260102-000000-000000", complete[:3])
+    records = ablations.read_records("table3", tmp_path)
+    assert len(records) == 9 and [r["name"] for r in records] == [r.name for r in ablations.planned_runs("table3")]
+    got = {(t.metric, t.cells[1]["variant"]): ablations.verdict(t, records)["verdict"] for t in ablations.TESTS["table3"]}
+    assert got == {("cd", "P2C-Dis"): "holds", ("cd", "Chamfer-Dis"): "unresolved at three seeds",
+                   ("miou", "P2C-Dis"): "holds", ("miou", "Chamfer-Dis"): "fails"}
+    claims = ablations.claims([ablations.verdict(t, records) for t in ablations.TESTS["table3"]])
+    assert claims == {"P2C-Seg gives the lowest Chamfer distance": "unresolved at three seeds",
+                      "P2C-Seg gives the highest mIoU": "fails"}
+    assert ablations.judge(ablations.TESTS["table3"], records) == claims
+
+
+def test_a_claim_fails_on_one_failed_test_even_while_others_are_pending():
+    tests = [ablations.Test("c", "cd", ({"v": "a"}, {"v": "b"}), "lower"),
+             ablations.Test("c", "cd", ({"v": "a"}, {"v": "d"}), "lower")]
+    rows = [_record(f"{v}{s}", {"v": v, "seed": s}, cd=x + s / 10) for v, x in (("a", 2.0), ("b", 1.0)) for s in range(3)]
+    assert [ablations.verdict(t, rows)["verdict"] for t in tests] == ["fails", "pending"]
+    assert ablations.claims([ablations.verdict(t, rows) for t in tests]) == {"c": "fails"}
+    assert ablations.judge(tests[1:], rows) == {"c": "pending (3 of 6 runs)"}
+
+
+def test_a_newer_record_of_the_same_run_wins_and_foreign_records_are_left_out(tmp_path):
+    old = _record("chair_M8_seed0", {"category": "chair", "M": 8, "seed": 0}, cd=2.0, n_ac=5.0)
+    new = _record("chair_M8_seed0", {"category": "chair", "M": 8, "seed": 0}, cd=1.0, n_ac=5.0, flatness=0.2)
+    foreign = _record("table_M8_seed0", {"category": "table", "M": 8, "seed": 0}, cd=9.0, n_ac=5.0)
+    failed = {**_record("chair_M12_seed0", {"category": "chair", "M": 12, "seed": 0}, cd=1.0), "status": "failed"}
+    _write_records(tmp_path, "table6", "20260101-000000-000000", [old, foreign, failed])
+    _write_records(tmp_path, "table6", "20260102-000000-000000", [new])
+    records = ablations.read_records("table6", tmp_path)
+    assert [r["name"] for r in records] == ["chair_M8_seed0"]
+    assert ablations.cell_values(records, {"M": 8}, "cd") == [1.0]
+    assert ablations.cell_values(records, {"M": 8}, "thickness") == [0.2], "the old metric name is read as today's"
+
+
+def _table6_records(cd_by_m: dict) -> list[dict]:
+    return [_record(f"chair_M{m}_seed{s}", {"category": "chair", "M": m, "seed": s}, cd=xs[s], n_ac=float(m))
+            for m, xs in cd_by_m.items() for s in range(3)]
+
+
+@pytest.mark.parametrize("means, spread, cd_verdict", [
+    ((5, 4, 3, 2, 1), 0.1, "holds"),  # falling means, ends apart
+    ((5, 4, 4.5, 2, 1), 0.1, "unresolved at three seeds"),  # ends apart, means not monotone
+    ((1.2, 1.15, 1.1, 1.05, 1.0), 0.5, "unresolved at three seeds"),  # monotone, the ends overlap
+    ((1, 2, 3, 4, 5), 0.1, "fails"),  # the ends apart the other way
+])
+def test_table6_trend_needs_monotone_means_and_ends_apart(tmp_path, means, spread, cd_verdict):
+    _write_records(tmp_path, "table6", "20260101-000000-000000",
+                   _table6_records({m: [x - spread, x, x + spread] for m, x in zip(table6.NUM_CUBOIDS, means)}))
+    records = ablations.read_records("table6", tmp_path)
+    verdicts = {t.metric: ablations.verdict(t, records)["verdict"] for t in ablations.TESTS["table6"]}
+    assert verdicts == {"cd": cd_verdict, "n_ac": "holds"}, "n_ac = M on every seed: monotone, the ends apart"
+
+
+def test_table4_no_cost_fails_only_when_sigma_s_is_worse_beyond_the_seeds(tmp_path):
+    def records(cd_005, cd_0):
+        return [_record(f"noise{n:g}_Normal_s{s:g}_seed{seed}",
+                        {"sigma_n": n, "distance": "Normal", "sigma_s": s, "seed": seed}, cd=xs[seed], nc_both=0.5)
+                for n in (0.0, 0.03) for s, xs in ((0.0, cd_0), (0.05, cd_005)) for seed in range(3)]
+
+    clean = next(t for t in ablations.TESTS["table4"] if t.kind == "not_higher")
+    assert clean.cells[0]["sigma_n"] == 0.0 and clean.cells[0]["sigma_s"] == 0.05
+    for cd_005, cd_0, expected in (([1, 2, 3], [2, 3, 4], "holds"), ([0, 0.1, 0.2], [1, 2, 3], "holds"),
+                                   ([4, 5, 6], [1, 2, 3], "fails")):
+        assert ablations.verdict(clean, records(cd_005, cd_0))["verdict"] == expected
+
+
+def test_the_same_tests_apply_to_other_categories_and_to_table5():
+    assert [t.cells[0]["category"] for t in ablations.table3_tests("table")] == ["table"] * 4
+    assert [c["M"] for c in ablations.table6_tests("airplane")[0].cells] == list(table6.NUM_CUBOIDS)
+    assert [c["lambda_1"] for c in ablations.TESTS["table5"][0].cells] == list(table5.LAMBDAS)
+    runs = [_record(f"l{w}_s{s}", {"lambda_1": w, "form": "averaged", "seed": s}, n_ac=10 - 20 * w + s / 10,
+                    cd=1 + w + s / 100, miou=0.8) for w in table5.LAMBDAS for s in range(3)]
+    words = [ablations.verdict(t, runs)["verdict"] for t in ablations.TESTS["table5"]]
+    assert words == ["holds", "holds", "unresolved at three seeds"], "mIoU tied: the seeds overlap"
+
+
+def test_a_test_describes_itself_in_one_line():
+    lines = [ablations.describe(t) for t in (ablations.table3_tests()[0], ablations.table4_tests()[0],
+                                               ablations.table6_tests()[1])]
+    assert lines == ["cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < 0", "n_ac grows over M 8 ... 24"]
+
+
+def test_ablation_reader_rejects_bad_arguments(tmp_path):
+    with pytest.raises(ValueError, match="table must be one of"):
+        ablations.read_records("table5", tmp_path)
+    with pytest.raises(FileNotFoundError, match="no folder of 15-minute runs"):
+        ablations.read_records("table3", tmp_path / "missing")
+    with pytest.raises(ValueError, match="kind must be one of"):
+        ablations.Test("claim", "cd", ({}, {}), "smaller")
+    with pytest.raises(ValueError, match="compares two cells"):
+        ablations.Test("claim", "cd", ({}, {}, {}), "lower")
+    with pytest.raises(ValueError, match="at least 2 seeds"):
+        ablations.verdict(ablations.TESTS["table3"][0], [], seeds=1)
+    assert ablations.read_records("table3", tmp_path) == [], "no run finished yet"
+
+
+def test_every_committed_15_minute_record_is_read():
+    committed = {p.parent.name for p in ablations.RUNS_15MIN.glob("*/*/*/record.json")}
+    read = {r["name"] for t in ablations.ABLATIONS for r in ablations.read_records(t)}
+    assert read == committed
+
+
+# ----------------------------------------------------------------------------------------------
+# Lesson 08's display helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def test_lesson_tables_format_a_table_as_aligned_text_and_escaped_html():
+    text = lesson_tables.table_text(["name", "x"], [["a", 1.5], ["long name", 10]])
+    assert text.splitlines() == ["name         x", "a          1.5", "long name   10"]
+    page = lesson_tables.table_html(["a<b", "x"], [["1", "2"]])
+    assert page == "<table><tr><th>a&lt;b</th><th>x</th></tr><tr><td>1</td><td>2</td></tr></table>"
+
+
+def test_lesson_tables_read_one_cell_and_its_seeds_range():
+    result = {"summary": [{"M": 8, "cd_mean": 0.5}, {"M": 12, "cd_mean": 0.25}],
+              "runs": [_record(f"m{s}", {"M": 8, "seed": s}, cd=0.4 + s / 10) for s in range(3)]}
+    assert lesson_tables.value(result, "cd", M=12) == 0.25
+    with pytest.raises(ValueError, match="matches 0"):
+        lesson_tables.value(result, "cd", M=16)
+    assert lesson_tables.seeds(result, "cd", M=8) == pytest.approx([0.4, 0.5, 0.6])
+    assert lesson_tables.span([0.4, 0.6, 0.5], 1000, 1) == "400.0 to 600.0" and lesson_tables.span([]) == "-"
+
+
+def test_lesson_tables_write_the_verdicts_in_words():
+    holds, fails = {"verdict": "holds"}, {"verdict": "fails"}
+    open_ = {"verdict": "unresolved at three seeds"}
+    assert lesson_tables.verdict_sentence([("A", holds), ("B", fails), ("C", open_), ("D", open_)]) == (
+        "By the rule, A holds. The seeds lie apart the other way in B: that test fails. "
+        "Of the other tests, 2 are unresolved at three seeds.")
+    assert lesson_tables.verdict_sentence([("A", holds), ("B", holds)]) == "By the rule, A and B hold."
+    assert lesson_tables.verdict_sentence([("A", open_)]).startswith("No test holds by the rule.")
+    grouped = [("cd: a < b", "chairs", holds), ("cd: a < c", "airplanes", fails), ("cd: a < c", "tables", fails)]
+    assert lesson_tables.verdict_sentence(grouped) == (
+        "By the rule, cd: a < b on chairs holds. The seeds lie apart the other way in cd: a < c on airplanes and tables: "
+        "those tests fail.")
+
+
+def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_finish(tmp_path):
+    low, high, mid = [1.0, 1.1, 1.2], [2.0, 2.1, 2.2], [1.15, 2.5, 3.0]
+    complete = _table3_records({"P2C-Seg": low, "P2C-Dis": high, "Chamfer-Dis": mid},
+                               {"P2C-Seg": high, "P2C-Dis": low, "Chamfer-Dis": [2.5, 2.6, 2.7]})
+    tests = ablations.TESTS["table3"]
+    assert lesson_tables.all_pending(tests, [])
+    assert lesson_tables.verdict_line(tests, []) == (
+        "**Verdict at the 15-minute scale:** P2C-Seg gives the lowest Chamfer distance: *pending (0 of 9 runs)*; "
+        "P2C-Seg gives the highest mIoU: *pending (0 of 9 runs)*.")
+    header, rows, line = lesson_tables.fifteen_rows("table3", complete[3:], [("cd", 1, 2, "CD")], complete)
+    assert header == ["variant", "seeds", "CD, 15 min", "CD, 600 steps"]
+    assert [row[:2] for row in rows] == [["P2C-Dis", "3 of 3"], ["Chamfer-Dis", "3 of 3"]]
+    assert line == "finished: 6 of 9 runs; pending: P2C-Seg (3 of 3 seeds)"
+    assert not lesson_tables.all_pending(tests, complete)
+    assert "*unresolved at three seeds*" in lesson_tables.verdict_line(tests, complete)
+
+
+def test_lesson_tables_list_the_fields_where_two_configurations_differ():
+    a = {"steps": 600, "loss": {"lambda": 0.1, "form": "averaged"}, "seed": 0}
+    b = {"steps": 2500, "loss": {"lambda": 0.1, "form": "sum"}, "seed": 0, "finetune": 500}
+    assert lesson_tables.config_differences(a, b) == [("steps", 600, 2500), ("loss.form", "averaged", "sum"),
+                                                     ("finetune", None, 500)]
