@@ -634,7 +634,7 @@ def draw_network(net, points: torch.Tensor):
     arrow(onehot, ecb, dims("onehot", "M"))
     arrow(ecb, ecf, dims("code", "M"))
     arrow(vae, ecf, "$z$ " + dims("z", "B"), vertical=True)
-    heads = (("scale $s$", "half_sizes"), ("rotation $r$", "quaternions"), ("translation $t$", "centers"),
+    heads = (("half sizes $s$", "half_sizes"), ("rotation $r$", "quaternions"), ("centre $t$", "centers"),
              ("existence $\\delta$", "exist_logits"))
     for i, (label, name) in enumerate(heads):  # D_cp: four heads on every cuboid feature
         y = y2 + 1.15 - 0.77 * i
