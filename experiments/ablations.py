@@ -257,6 +257,29 @@ def describe(test: Test) -> str:
     return f"{test.metric}{where}: {label}{name(first)} {sign} {name(last)}"
 
 
+#: A metric's name in a sentence.
+METRIC_WORDS = {"cd": "Chamfer distance", "miou": "mIoU", "nc_both": "normal consistency", "nc": "normal consistency",
+                "n_ac": "number of cuboids"}
+
+
+def in_words(test: Test) -> str:
+    """A test's claim as a sentence fragment: "P2C-Seg's Chamfer distance is below P2C-Dis's", "at sigma_n 0.03,
+    the Chamfer distance with sigma_s 0.05 is below that with sigma_s 0", "the Chamfer distance falls over M 8 ... 24"."""
+    first, last = test.cells[0], test.cells[-1]
+    varied = [k for k in first if first[k] != last.get(k)]
+    fixed = [k for k in first if k not in varied and k not in ("category", "distance")]
+    where = "".join(f"at {k} {first[k]:g}, " for k in fixed)
+    metric = METRIC_WORDS.get(test.metric, test.metric)
+    if test.kind in ("falls", "grows"):
+        return f"{where}the {metric} {test.kind} over {' '.join(varied)} {first[varied[0]]:g} ... {last[varied[0]]:g}"
+    relation = {"lower": "below", "higher": "above", "not_higher": "not above", "not_lower": "not below"}[test.kind]
+    if all(isinstance(first[k], str) for k in varied):
+        name = lambda cell: " ".join(cell[k] for k in varied)  # noqa: E731
+        return f"{where}{name(first)}'s {metric} is {relation} {name(last)}'s"
+    name = lambda cell: " ".join(f"{k} {cell[k]:g}" for k in varied)  # noqa: E731
+    return f"{where}the {metric} with {name(first)} is {relation} that with {name(last)}"
+
+
 def main() -> int:
     """Print, for each table, the finished seeds of every cell and the verdict of every test."""
     for table in ABLATIONS:

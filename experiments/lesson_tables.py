@@ -132,27 +132,30 @@ def _join(items: Sequence[str]) -> str:
 
 
 def verdict_sentence(verdicts: Sequence[tuple]) -> str:
-    """Which tests hold and which fail, in one to three sentences, from (label, verdict) or (label, where, verdict).
+    """Which tests hold and which fail, in one to three sentences, from (claim, verdict) or (claim, where, verdict).
 
-    The label names the test ("cd: P2C-Seg < P2C-Dis"); ``where`` names the cell it ran on ("chairs"), and one test
-    that passes in several places is named once ("... on airplanes and tables"). Tests that hold come first, then
-    those that fail; the rest are counted by verdict. Written from the verdicts, the sentence changes with them.
+    The claim is a test's :func:`ablations.in_words` ("P2C-Seg's Chamfer distance is below P2C-Dis's"); ``where``
+    names the cell it ran on ("chairs"), and one claim that passes in several places is named once ("on airplanes
+    and tables: ..."). Claims that hold come first, then those that fail; the rest are counted by verdict.
+    Written from the verdicts, the sentence changes with them.
     """
-    groups: dict[str, dict[str, list[str]]] = {}  # verdict -> label -> wheres
+    groups: dict[str, dict[str, list[str]]] = {}  # verdict -> claim -> wheres
     for item in verdicts:
         label, where, v = item if len(item) == 3 else (item[0], None, item[1])
         groups.setdefault(v["verdict"], {}).setdefault(label, []).extend([where] if where else [])
 
     def named(word: str) -> tuple[str, int]:
         found = groups.get(word, {})
-        items = [f"{label} on {_join(wheres)}" if wheres else label for label, wheres in found.items()]
-        return (_join(items) if items else ""), sum(max(len(w), 1) for w in found.values())
+        items = [f"on {_join(wheres)}, {label}" if wheres else label for label, wheres in found.items()]
+        return "; ".join(items), sum(max(len(w), 1) for w in found.values())
 
     holds, n_holds = named("holds")
     fails, n_fails = named("fails")
-    parts = [f"By the rule, {holds} {'holds' if n_holds == 1 else 'hold'}." if holds else "No test holds by the rule."]
+    parts = [f"By the rule, {'this holds' if n_holds == 1 else 'these hold'}: {holds}." if holds
+             else "No test holds by the rule."]
     if fails:
-        parts.append(f"The seeds lie apart the other way in {fails}: {'that test fails' if n_fails == 1 else 'those tests fail'}.")
+        parts.append(f"{'This claim fails' if n_fails == 1 else 'These claims fail'}, "
+                     f"the seeds lying apart the other way: {fails}.")
     rest = {w: sum(max(len(x), 1) for x in found.values()) for w, found in groups.items() if w not in ("holds", "fails")}
     if rest:
         counted = [f"{n} {'is' if n == 1 and i == 0 else 'are' if i == 0 else ''} {w}".replace("  ", " ")
@@ -166,11 +169,6 @@ def verdict_line(tests: Sequence[ablations.Test], records: Sequence[dict], scale
     "**Verdict at the 15-minute scale:** <claim>: <verdict>; ..." (a pending claim counts its runs)."""
     judged = ablations.judge(tests, records)
     return f"**Verdict at {scale}:** " + "; ".join(f"{claim}: *{word}*" for claim, word in judged.items()) + "."
-
-
-def all_pending(tests: Sequence[ablations.Test], records: Sequence[dict]) -> bool:
-    """True when every test still waits for runs (no verdict is a result yet)."""
-    return all(ablations.verdict(t, records)["verdict"] == "pending" for t in tests)
 
 
 # ----------------------------------------------------------------------------------------------

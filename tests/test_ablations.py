@@ -202,14 +202,23 @@ def test_lesson_tables_write_the_verdicts_in_words():
     holds, fails = {"verdict": "holds"}, {"verdict": "fails"}
     open_ = {"verdict": "unresolved at three seeds"}
     assert lesson_tables.verdict_sentence([("A", holds), ("B", fails), ("C", open_), ("D", open_)]) == (
-        "By the rule, A holds. The seeds lie apart the other way in B: that test fails. "
+        "By the rule, this holds: A. This claim fails, the seeds lying apart the other way: B. "
         "Of the other tests, 2 are unresolved at three seeds.")
-    assert lesson_tables.verdict_sentence([("A", holds), ("B", holds)]) == "By the rule, A and B hold."
+    assert lesson_tables.verdict_sentence([("A", holds), ("B", holds)]) == "By the rule, these hold: A; B."
     assert lesson_tables.verdict_sentence([("A", open_)]).startswith("No test holds by the rule.")
-    grouped = [("cd: a < b", "chairs", holds), ("cd: a < c", "airplanes", fails), ("cd: a < c", "tables", fails)]
+    grouped = [("a is below b", "chairs", holds), ("a is below c", "airplanes", fails), ("a is below c", "tables", fails)]
     assert lesson_tables.verdict_sentence(grouped) == (
-        "By the rule, cd: a < b on chairs holds. The seeds lie apart the other way in cd: a < c on airplanes and tables: "
-        "those tests fail.")
+        "By the rule, this holds: on chairs, a is below b. These claims fail, the seeds lying apart the other way: "
+        "on airplanes and tables, a is below c.")
+
+
+def test_a_test_states_its_claim_in_words():
+    words = [ablations.in_words(t) for t in (ablations.table3_tests()[1], ablations.table4_tests()[0],
+                                             ablations.table5_tests()[2], ablations.table6_tests()[0])]
+    assert words == ["P2C-Seg's Chamfer distance is below Chamfer-Dis's",
+                     "at sigma_n 0.03, the Chamfer distance with sigma_s 0.05 is below that with sigma_s 0",
+                     "the mIoU with lambda_1 0.2 is below that with lambda_1 0.05",
+                     "the Chamfer distance falls over M 8 ... 24"]
 
 
 def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_finish(tmp_path):
@@ -217,7 +226,6 @@ def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_fini
     complete = _table3_records({"P2C-Seg": low, "P2C-Dis": high, "Chamfer-Dis": mid},
                                {"P2C-Seg": high, "P2C-Dis": low, "Chamfer-Dis": [2.5, 2.6, 2.7]})
     tests = ablations.TESTS["table3"]
-    assert lesson_tables.all_pending(tests, [])
     assert lesson_tables.verdict_line(tests, []) == (
         "**Verdict at the 15-minute scale:** P2C-Seg gives the lowest Chamfer distance: *pending (0 of 9 runs)*; "
         "P2C-Seg gives the highest mIoU: *pending (0 of 9 runs)*.")
@@ -225,7 +233,6 @@ def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_fini
     assert header == ["variant", "seeds", "CD, 15 min", "CD, 600 steps"]
     assert [row[:2] for row in rows] == [["P2C-Dis", "3 of 3"], ["Chamfer-Dis", "3 of 3"]]
     assert line == "finished: 6 of 9 runs; pending: P2C-Seg (3 of 3 seeds)"
-    assert not lesson_tables.all_pending(tests, complete)
     assert "*unresolved at three seeds*" in lesson_tables.verdict_line(tests, complete)
 
 
