@@ -45,20 +45,27 @@ COMMON = ("--recipe", runner.FIFTEEN_MINUTES, "--seeds", "3")
 
 #: What a test asks of its cells: a below b, a above b, a not above b, a not below b, means falling or growing.
 KINDS = ("lower", "higher", "not_higher", "not_lower", "falls", "grows")
+#: Whose claim a test decides: the paper's text states it, or the course added it. SOURCE_WORDS: each in a table.
+SOURCES = ("paper", "course")
+SOURCE_WORDS = {"paper": "the paper's claim", "course": "course test"}
 
 
 @dataclass(frozen=True)
 class Test:
     """One comparison stated before the runs. claim: the paper's claim it decides. metric: a key of the runs'
     metrics. cells: the cells it compares (each a dict of key fields), two for a comparison, in order of M for a
-    trend. kind: one of :data:`KINDS`; the first cell is "a"."""
+    trend. kind: one of :data:`KINDS`; the first cell is "a". source: one of :data:`SOURCES`: "paper" when the
+    paper's text makes the claim, "course" when the course added it (the paper's text does not state it)."""
 
     claim: str
     metric: str
     cells: tuple[dict, ...]
     kind: str
+    source: str = "paper"
 
     def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if self.kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
         if len(self.cells) < 2 or (self.kind not in ("falls", "grows") and len(self.cells) != 2):
@@ -67,29 +74,34 @@ class Test:
 
 
 def table3_tests(category: str = "chair") -> list[Test]:
-    """Table 3's claim on one category: P2C-Seg's Chamfer distance below, and its mIoU above, each other variant's."""
+    """Table 3's claim on one category: P2C-Seg's Chamfer distance below each other variant's (the paper's claim),
+    and its mIoU above (a course test: the paper's Table 3 reports the Chamfer distance only)."""
     seg, cat = {"category": category, "variant": "P2C-Seg"}, {"category": category}
-    return [Test(f"P2C-Seg gives the {word}", metric, (seg, {**cat, "variant": other}), kind)
-            for word, metric, kind in (("lowest Chamfer distance", "cd", "lower"), ("highest mIoU", "miou", "higher"))
+    return [Test(f"P2C-Seg gives the {word}", metric, (seg, {**cat, "variant": other}), kind, source)
+            for word, metric, kind, source in (("lowest Chamfer distance", "cd", "lower", "paper"),
+                                               ("highest mIoU", "miou", "higher", "course"))
             for other in ("P2C-Dis", "Chamfer-Dis")]
 
 
 def table4_tests() -> list[Test]:
-    """Table 4's claim on sigma_s (chairs): sigma_s = 0.05 against 0, under the most noise and without noise."""
+    """Table 4's claim on sigma_s (chairs): sigma_s = 0.05 against 0 under the most noise (the paper's claim), and
+    without noise (a course test: the paper's clean-input CD even rises a little with sigma_s)."""
     cell = lambda sigma_n, sigma_s: {"sigma_n": sigma_n, "distance": "Normal", "sigma_s": sigma_s}  # noqa: E731
     noisy, clean = max(table4.NOISE), 0.0
     return [Test("sigma_s > 0 is robust to noise", "cd", (cell(noisy, 0.05), cell(noisy, 0.0)), "lower"),
             Test("sigma_s > 0 is robust to noise", "nc_both", (cell(noisy, 0.05), cell(noisy, 0.0)), "higher"),
-            Test("sigma_s > 0 costs nothing on clean input", "cd", (cell(clean, 0.05), cell(clean, 0.0)), "not_higher"),
+            Test("sigma_s > 0 costs nothing on clean input", "cd", (cell(clean, 0.05), cell(clean, 0.0)), "not_higher",
+                 "course"),
             Test("sigma_s > 0 costs nothing on clean input", "nc_both", (cell(clean, 0.05), cell(clean, 0.0)),
-                 "not_lower")]
+                 "not_lower", "course")]
 
 
 def table6_tests(category: str = "chair") -> list[Test]:
-    """Table 6's claim on one category: over M = 8 ... 24 the Chamfer distance falls and N_AC grows."""
+    """Table 6's claim on one category: over M = 8 ... 24 the Chamfer distance falls (the paper's claim) and N_AC
+    grows (a course test: the paper's table shows it, its text does not claim it)."""
     cells = tuple({"category": category, "M": m} for m in table6.NUM_CUBOIDS)
     return [Test("the Chamfer distance falls with M", "cd", cells, "falls"),
-            Test("more cuboids are used with a larger M", "n_ac", cells, "grows")]
+            Test("more cuboids are used with a larger M", "n_ac", cells, "grows", "course")]
 
 
 def table5_tests(weights: Sequence[float] = table5.LAMBDAS) -> list[Test]:
@@ -222,6 +234,16 @@ def claims(verdicts: Sequence[dict]) -> dict[str, str]:
             else "holds" if set(words) == {"holds"} else "unresolved at three seeds" for claim, words in out.items()}
 
 
+def sources(tests: Sequence[Test]) -> dict[str, str]:
+    """claim -> whose claim it is, in :data:`SOURCE_WORDS`' words ("the paper's claim" or "course test"); a claim
+    whose tests disagree raises ValueError."""
+    out: dict[str, str] = {}
+    for t in tests:
+        if out.setdefault(t.claim, t.source) != t.source:
+            raise ValueError(f"the tests of {t.claim!r} name different sources")
+    return {claim: SOURCE_WORDS[source] for claim, source in out.items()}
+
+
 def word(verdict_: dict) -> str:
     """A verdict in a table's words: "pending (5 of 6 runs)" while runs are missing, the verdict itself otherwise."""
     if verdict_["verdict"] == "pending":
@@ -262,22 +284,28 @@ METRIC_WORDS = {"cd": "Chamfer distance", "miou": "mIoU", "nc_both": "normal con
                 "n_ac": "number of cuboids"}
 
 
-def in_words(test: Test) -> str:
+def in_words(test: Test, negated: bool = False) -> str:
     """A test's claim as a sentence fragment: "P2C-Seg's Chamfer distance is below P2C-Dis's", "at sigma_n 0.03,
-    the Chamfer distance with sigma_s 0.05 is below that with sigma_s 0", "the Chamfer distance falls over M 8 ... 24"."""
+    the Chamfer distance with sigma_s 0.05 is below that with sigma_s 0", "the Chamfer distance falls over M 8 ... 24".
+
+    negated: what a failed test found instead, the other way round: "P2C-Seg's Chamfer distance lies above
+    P2C-Dis's", "the Chamfer distance grows over M 8 ... 24" (for a trend: the last cell against the first)."""
     first, last = test.cells[0], test.cells[-1]
     varied = [k for k in first if first[k] != last.get(k)]
     fixed = [k for k in first if k not in varied and k not in ("category", "distance")]
     where = "".join(f"at {k} {first[k]:g}, " for k in fixed)
     metric = METRIC_WORDS.get(test.metric, test.metric)
     if test.kind in ("falls", "grows"):
-        return f"{where}the {metric} {test.kind} over {' '.join(varied)} {first[varied[0]]:g} ... {last[varied[0]]:g}"
+        kind = {"falls": "grows", "grows": "falls"}[test.kind] if negated else test.kind
+        return f"{where}the {metric} {kind} over {' '.join(varied)} {first[varied[0]]:g} ... {last[varied[0]]:g}"
     relation = {"lower": "below", "higher": "above", "not_higher": "not above", "not_lower": "not below"}[test.kind]
+    if negated:
+        relation = {"lower": "above", "higher": "below", "not_higher": "above", "not_lower": "below"}[test.kind]
     if all(isinstance(first[k], str) for k in varied):
         name = lambda cell: " ".join(cell[k] for k in varied)  # noqa: E731
-        return f"{where}{name(first)}'s {metric} is {relation} {name(last)}'s"
+        return f"{where}{name(first)}'s {metric} {'lies' if negated else 'is'} {relation} {name(last)}'s"
     name = lambda cell: " ".join(f"{k} {cell[k]:g}" for k in varied)  # noqa: E731
-    return f"{where}the {metric} with {name(first)} is {relation} that with {name(last)}"
+    return f"{where}the {metric} with {name(first)} {'lies' if negated else 'is'} {relation} that with {name(last)}"
 
 
 def main() -> int:

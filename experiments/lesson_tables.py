@@ -134,7 +134,9 @@ def _join(items: Sequence[str]) -> str:
 def verdict_sentence(verdicts: Sequence[tuple]) -> str:
     """Which tests hold and which fail, in one to three sentences, from (claim, verdict) or (claim, where, verdict).
 
-    The claim is a test's :func:`ablations.in_words` ("P2C-Seg's Chamfer distance is below P2C-Dis's"); ``where``
+    The claim is an :class:`ablations.Test` or a string. A test is put in :func:`ablations.in_words`' words: what it
+    claims where it holds ("P2C-Seg's Chamfer distance is below P2C-Dis's"), what was found where it fails
+    ("P2C-Seg's Chamfer distance lies above P2C-Dis's"); a string is used as it is. ``where``
     names the cell it ran on ("chairs"), and one claim that passes in several places is named once ("on airplanes
     and tables: ..."). Claims that hold come first, then those that fail; the rest are counted by verdict.
     Written from the verdicts, the sentence changes with them.
@@ -142,6 +144,8 @@ def verdict_sentence(verdicts: Sequence[tuple]) -> str:
     groups: dict[str, dict[str, list[str]]] = {}  # verdict -> claim -> wheres
     for item in verdicts:
         label, where, v = item if len(item) == 3 else (item[0], None, item[1])
+        if isinstance(label, ablations.Test):
+            label = ablations.in_words(label, negated=v["verdict"] == "fails")
         groups.setdefault(v["verdict"], {}).setdefault(label, []).extend([where] if where else [])
 
     def named(word: str) -> tuple[str, int]:
@@ -154,7 +158,7 @@ def verdict_sentence(verdicts: Sequence[tuple]) -> str:
     parts = [f"By the rule, {'this holds' if n_holds == 1 else 'these hold'}: {holds}." if holds
              else "No test holds by the rule."]
     if fails:
-        parts.append(f"{'This claim fails' if n_fails == 1 else 'These claims fail'}, "
+        parts.append(f"{'This test fails' if n_fails == 1 else 'These tests fail'}, "
                      f"the seeds lying apart the other way: {fails}.")
     rest = {w: sum(max(len(x), 1) for x in found.values()) for w, found in groups.items() if w not in ("holds", "fails")}
     if rest:

@@ -202,14 +202,43 @@ def test_lesson_tables_write_the_verdicts_in_words():
     holds, fails = {"verdict": "holds"}, {"verdict": "fails"}
     open_ = {"verdict": "unresolved at three seeds"}
     assert lesson_tables.verdict_sentence([("A", holds), ("B", fails), ("C", open_), ("D", open_)]) == (
-        "By the rule, this holds: A. This claim fails, the seeds lying apart the other way: B. "
+        "By the rule, this holds: A. This test fails, the seeds lying apart the other way: B. "
         "Of the other tests, 2 are unresolved at three seeds.")
     assert lesson_tables.verdict_sentence([("A", holds), ("B", holds)]) == "By the rule, these hold: A; B."
     assert lesson_tables.verdict_sentence([("A", open_)]).startswith("No test holds by the rule.")
     grouped = [("a is below b", "chairs", holds), ("a is below c", "airplanes", fails), ("a is below c", "tables", fails)]
     assert lesson_tables.verdict_sentence(grouped) == (
-        "By the rule, this holds: on chairs, a is below b. These claims fail, the seeds lying apart the other way: "
+        "By the rule, this holds: on chairs, a is below b. These tests fail, the seeds lying apart the other way: "
         "on airplanes and tables, a is below c.")
+
+
+def test_a_failed_test_is_stated_as_what_was_found():
+    holds, fails = {"verdict": "holds"}, {"verdict": "fails"}
+    seg_vs_dis, seg_vs_chamfer = ablations.table3_tests("chair")[:2]
+    sentence = lesson_tables.verdict_sentence([(seg_vs_dis, "chairs", holds), (seg_vs_chamfer, "airplanes", fails),
+                                               (seg_vs_chamfer, "tables", fails)])
+    assert sentence == ("By the rule, this holds: on chairs, P2C-Seg's Chamfer distance is below P2C-Dis's. "
+                        "These tests fail, the seeds lying apart the other way: on airplanes and tables, "
+                        "P2C-Seg's Chamfer distance lies above Chamfer-Dis's.")
+    negated = [ablations.in_words(t, negated=True) for t in (ablations.table4_tests()[1], ablations.table4_tests()[2],
+                                                            ablations.table6_tests()[0])]
+    assert negated == ["at sigma_n 0.03, the normal consistency with sigma_s 0.05 lies below that with sigma_s 0",
+                       "at sigma_n 0, the Chamfer distance with sigma_s 0.05 lies above that with sigma_s 0",
+                       "the Chamfer distance grows over M 8 ... 24"]
+
+
+def test_each_claim_says_whether_the_paper_or_the_course_makes_it():
+    found = {claim: source for tests in ablations.TESTS.values() for claim, source in ablations.sources(tests).items()}
+    assert found["P2C-Seg gives the lowest Chamfer distance"] == "the paper's claim"
+    assert found["P2C-Seg gives the highest mIoU"] == "course test"
+    assert found["sigma_s > 0 costs nothing on clean input"] == "course test"
+    assert found["sigma_s > 0 is robust to noise"] == "the paper's claim"
+    with pytest.raises(ValueError, match="source"):
+        ablations.Test("claim", "cd", ({}, {}), "lower", "reviewer")
+    mixed = [ablations.Test("c", "cd", ({"a": 1}, {"a": 2}), "lower"),
+             ablations.Test("c", "miou", ({"a": 1}, {"a": 2}), "higher", "course")]
+    with pytest.raises(ValueError, match="different sources"):
+        ablations.sources(mixed)
 
 
 def test_a_test_states_its_claim_in_words():
