@@ -10,6 +10,8 @@ tests); this module only reads values and formats them.
   :func:`verdict_line` turn verdicts into a sentence, so that the lesson's prose cannot go stale.
 * :func:`fifteen_rows` and :func:`show_fifteen` give a 15-minute table: the finished cells and what is pending.
 * :func:`config_differences` lists the fields where two run configurations differ.
+* :func:`summary_rows` builds the summary's two tables (the paper's claims, the course's tests);
+  :func:`luck_rows` counts the verdicts that luck alone would settle.
 """
 
 from __future__ import annotations
@@ -251,3 +253,56 @@ def config_differences(a: dict, b: dict) -> list[tuple[str, object, object]]:
     fa, fb = _flatten(a), _flatten(b)
     fields = [*fa, *(k for k in fb if k not in fa)]
     return [(k, fa.get(k), fb.get(k)) for k in fields if fa.get(k) != fb.get(k)]
+
+
+# ----------------------------------------------------------------------------------------------
+# The summary, and how many clear verdicts luck alone would give
+# ----------------------------------------------------------------------------------------------
+
+#: The summary's experiments, in the order of the paper.
+EXPERIMENTS = ("Tables 1-2", "Table 3", "Table 4", "Table 5", "Table 6", "Fig. 11", "the authors' code")
+
+
+def summary_rows(first: dict, fifteen: dict, extra: Sequence[Sequence] = ()) -> dict[str, list[list]]:
+    """The summary's two tables: source ("paper", "course") -> rows [experiment, claim, first look, 15-minute
+    recipe]. ``first`` and ``fifteen`` map each table of :data:`ablations.TESTS` to its run records at each scale;
+    ``extra`` adds rows [experiment, claim, source, first look, 15-minute recipe] for claims outside those tests.
+    Rows follow :data:`EXPERIMENTS`; within an experiment the extra rows come first."""
+    rows = [list(row) for row in extra]
+    for table, tests in ablations.TESTS.items():
+        late, whose = ablations.judge(tests, fifteen[table]), ablations.sources(tests)
+        rows += [[f"Table {table[-1]}", claim, whose[claim], word, late[claim]]
+                 for claim, word in ablations.judge(tests, first[table]).items()]
+    rows.sort(key=lambda row: EXPERIMENTS.index(row[0]))  # stable: extra rows stay first in their experiment
+    words = {ablations.SOURCE_WORDS[s]: s for s in ablations.SOURCES}
+    out: dict[str, list[list]] = {s: [] for s in ablations.SOURCES}
+    for experiment, claim, source, word, late in rows:
+        out[words.get(source, source)].append([experiment, claim, word, late])
+    return out
+
+
+def luck_rows(tests: Sequence[ablations.Test], draws: int = 20_000, seed: int = 0, seeds: int = 3) -> list[list]:
+    """How many verdicts luck alone would settle when no cell differs from another. One row per kind of test and
+    number of cells: [kind, cells, tests, chance of monotone means, chance, expected]. A "difference" settles by
+    luck when the seeds are apart either way (2 of C(6, 3) orders); a "no difference" when they are apart the way it
+    rules out (1 order); a trend when it holds or fails, simulated (seeded) with the rule of :mod:`ablations`."""
+    import math
+
+    import torch
+
+    orders = math.comb(2 * seeds, seeds)
+    groups: dict[tuple[str, int], list] = {}
+    for t in tests:
+        kind = "trend" if t.kind in ("falls", "grows") else "no difference" if t.kind.startswith("not_") else "difference"
+        groups.setdefault((kind, len(t.cells)), []).append(t)
+    gen = torch.Generator().manual_seed(seed)
+    rows = []
+    for (kind, n), group in groups.items():
+        monotone = 2 / math.factorial(n) if kind == "trend" else None
+        if kind == "trend":
+            values = torch.randn(draws, n, seeds, generator=gen).tolist()  # equal cells: every seed from one law
+            chance = sum(ablations._compare(group[0], v)[0] in ("holds", "fails") for v in values) / draws
+        else:
+            chance = (2 if kind == "difference" else 1) / orders
+        rows.append([kind, n, len(group), monotone, chance, len(group) * chance])
+    return rows

@@ -270,3 +270,46 @@ def test_lesson_tables_list_the_fields_where_two_configurations_differ():
     b = {"steps": 2500, "loss": {"lambda": 0.1, "form": "sum"}, "seed": 0, "finetune": 500}
     assert lesson_tables.config_differences(a, b) == [("steps", 600, 2500), ("loss.form", "averaged", "sum"),
                                                      ("finetune", None, 500)]
+
+
+# ----------------------------------------------------------------------------------------------
+# Lesson 08's summary and the verdicts luck alone would give
+# ----------------------------------------------------------------------------------------------
+
+
+def test_summary_rows_split_by_source_in_the_papers_order():
+    empty = {table: [] for table in ablations.TESTS}
+    paper, course = ablations.SOURCE_WORDS["paper"], ablations.SOURCE_WORDS["course"]
+    extra = [["the authors' code", "printed losses", course, "holds", "not rerun"],
+             ["Table 4", "degenerates", paper, "holds", "not rerun"]]
+    out = lesson_tables.summary_rows(empty, empty, extra)
+    assert set(out) == {"paper", "course"}
+    claims = {s: [row[1] for row in rows] for s, rows in out.items()}
+    for table, tests in ablations.TESTS.items():
+        for claim, source in ablations.sources(tests).items():
+            other = "course" if ablations.SOURCE_WORDS["paper"] == source else "paper"
+            assert claim in claims[{v: k for k, v in ablations.SOURCE_WORDS.items()}[source]] and claim not in claims[other]
+    for rows in out.values():
+        ranks = [lesson_tables.EXPERIMENTS.index(row[0]) for row in rows]
+        assert ranks == sorted(ranks)
+        assert all(len(row) == 4 for row in rows)
+    table4 = [row[1] for row in out["paper"] if row[0] == "Table 4"]
+    assert table4[0] == "degenerates" and len(table4) > 1  # an extra row comes first in its experiment
+    assert out["course"][-1][1] == "printed losses"
+    assert all(row[2].startswith("pending") for row in out["paper"] if row[1] != "degenerates")
+
+
+def test_luck_rows_count_every_test_and_match_the_counted_chance():
+    tests = [t for ts in ablations.TESTS.values() for t in ts]
+    rows = lesson_tables.luck_rows(tests, draws=4000)
+    assert sum(row[2] for row in rows) == len(tests)
+    for kind, n, count, monotone, chance, expected in rows:
+        assert expected == pytest.approx(count * chance)
+        if kind == "difference":
+            assert chance == pytest.approx(2 / 20)
+        elif kind == "no difference":
+            assert chance == pytest.approx(1 / 20)
+        else:  # a false "fails" alone has a chance of 1/20; a false "holds" (monotone means too) adds a little
+            assert monotone == pytest.approx(2 / __import__("math").factorial(n))
+            assert 0.04 < chance < 0.05 + monotone * 0.1 + 0.015
+    assert lesson_tables.luck_rows(tests, draws=500) == lesson_tables.luck_rows(tests, draws=500)  # seeded
