@@ -13,7 +13,7 @@ same rule to Table 5's 15-minute runs (``results/table5_compactness_15min.json``
 
 A test's verdict is "holds", "fails" or "unresolved at three seeds" (the seeds overlap): results. While some of
 its runs have not finished, it is "pending", which is no result at all (:func:`word` writes "pending (k of n
-runs)"). Table 4's normal consistency is measured both ways (``nc_both``), as lesson 08 reads it. Records written before the rename of ``flatness`` are read with today's metric names
+runs)"). Table 4's normal consistency is measured both ways (``nc_both``), as lesson 09 reads it. Records written before the rename of ``flatness`` are read with today's metric names
 (:func:`summaries.result_rows`).
 """
 

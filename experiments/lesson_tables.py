@@ -1,14 +1,15 @@
-"""Display helpers of lesson 08: read the committed results, print tables, and write verdicts in words.
+"""Display helpers of lessons 08 and 09: read the committed results, print tables, and write verdicts in words.
 
-Lesson 08 puts ``experiments/`` on ``sys.path`` and imports this module in its first code cell, so the lesson's
-cells hold the experiments and not the plumbing. Every verdict comes from :mod:`ablations` (the rule and the
+Lessons 08 and 09 put ``experiments/`` on ``sys.path`` and import this module in their first code cell, so the
+lessons' cells hold the experiments and not the plumbing. Every verdict comes from :mod:`ablations` (the rule and the
 tests); this module only reads values and formats them.
 
 * :func:`load_results` reads ``results/<name>.json``; :func:`value`, :func:`seeds` and :func:`span` read one cell.
 * :func:`table_text` and :func:`table_html` format a table; :func:`show_table` displays both forms.
 * :func:`show_verdicts` prints every test's verdict at each scale; :func:`verdict_sentence` and
   :func:`verdict_line` turn verdicts into a sentence, so that the lesson's prose cannot go stale.
-* :func:`fifteen_rows` and :func:`show_fifteen` give a 15-minute table: the finished cells and what is pending.
+* :func:`fifteen_rows` and :func:`show_fifteen` give a 15-minute table: the finished cells and what is pending;
+  :func:`check_fifteen` checks that each verdict counts exactly the records read.
 * :func:`config_differences` lists the fields where two run configurations differ.
 * :func:`summary_rows` builds the summary's two tables (the paper's claims, the course's tests);
   :func:`luck_rows` counts the verdicts that luck alone would settle.
@@ -25,7 +26,7 @@ from typing import Sequence
 import ablations
 import runner
 
-#: The committed results files that lesson 08 reads.
+#: The committed results files that lessons 08 and 09 read.
 RESULT_NAMES = ("table1_2_comparison", "table3_supervision", "table4_distance", "table5_compactness",
                 "table5_compactness_15min", "table6_num_cuboids", "fig8_supervision", "fig9_nearest_surface",
                 "fig10_compactness", "fig11_point_density", "paper_vs_code")
@@ -232,9 +233,36 @@ def show_fifteen(table: str, records: Sequence[dict], metrics: Sequence[tuple[st
     print(line)
 
 
+def check_fifteen(table: str, tests: Sequence[ablations.Test], found: Sequence[dict], records: Sequence[dict]) -> None:
+    """Check a 15-minute table at any stage of its runs: the records read are planned runs of the 15-minute recipe,
+    one each, and each verdict counts exactly them and is "pending" exactly while a cell has fewer than three seeds.
+
+    Args:
+        table: "table3", "table4" or "table6".
+        tests, found: the table's tests and their verdicts on ``records`` (:func:`show_verdicts`'s "fifteen_minutes").
+        records: the table's finished runs (:func:`ablations.read_records`).
+    Raises:
+        AssertionError: naming the first check that fails.
+    """
+    planned = {run.name for run in ablations.planned_runs(table)}
+    names = [r["name"] for r in records]
+    counts = [[sum(all(r["key"][k] == x for k, x in cell.items()) for r in records) for cell in t.cells] for t in tests]
+    checks = [(set(names) <= planned, f"{table}: records of runs it does not plan: {sorted(set(names) - planned)}"),
+              (len(set(names)) == len(names), f"{table}: one record per finished run"),
+              (all(r["config"]["n_shapes"] == runner.FIFTEEN_MINUTE_SHAPES for r in records), f"{table}: 15-minute runs only"),
+              (len(tests) == len(found), f"{table}: one verdict per test")]
+    for t, v, n in zip(tests, found, counts):
+        checks += [(v["finished"] == sum(n), f"{ablations.describe(t)}: counts {v['finished']} runs, {sum(n)} were read"),
+                   ((v["verdict"] == "pending") == (min(n) < 3), f"{ablations.describe(t)}: {v['verdict']} with seeds {n}")]
+    failed = [why for ok, why in checks if not ok]
+    if failed:
+        raise AssertionError(failed[0])
+
+
 # ----------------------------------------------------------------------------------------------
 # Records
 # ----------------------------------------------------------------------------------------------
+
 
 
 def _flatten(d: dict, prefix: str = "") -> dict:
@@ -265,11 +293,16 @@ EXPERIMENTS = ("Tables 1-2", "Table 3", "Table 4", "Table 5", "Table 6", "Fig. 1
 
 def summary_rows(first: dict, fifteen: dict, extra: Sequence[Sequence] = ()) -> dict[str, list[list]]:
     """The summary's two tables: source ("paper", "course") -> rows [experiment, claim, first look, 15-minute
-    recipe]. ``first`` and ``fifteen`` map each table of :data:`ablations.TESTS` to its run records at each scale;
+    recipe]. ``first`` and ``fifteen`` map the same tables of :data:`ablations.TESTS` to their run records at each
+    scale (a lesson passes the tables it covers);
     ``extra`` adds rows [experiment, claim, source, first look, 15-minute recipe] for claims outside those tests.
     Rows follow :data:`EXPERIMENTS`; within an experiment the extra rows come first."""
+    unknown = set(first) ^ set(fifteen) | set(first) - set(ablations.TESTS)
+    if unknown:
+        raise ValueError(f"first and fifteen must name the same tables of {tuple(ablations.TESTS)}; check {sorted(unknown)}")
     rows = [list(row) for row in extra]
-    for table, tests in ablations.TESTS.items():
+    for table in first:
+        tests = ablations.TESTS[table]
         late, whose = ablations.judge(tests, fifteen[table]), ablations.sources(tests)
         rows += [[f"Table {table[-1]}", claim, whose[claim], word, late[claim]]
                  for claim, word in ablations.judge(tests, first[table]).items()]

@@ -1,4 +1,4 @@
-"""Tests of the 15-minute ablations' verdicts (experiments/ablations.py) and lesson 08's tables
+"""Tests of the 15-minute ablations' verdicts (experiments/ablations.py) and lessons 08-09's tables
 (experiments/lesson_tables.py): the rule that decides a difference, the tests stated before the runs, and how
 finished and pending runs are read and shown."""
 
@@ -177,7 +177,7 @@ def test_every_committed_15_minute_record_is_read():
 
 
 # ----------------------------------------------------------------------------------------------
-# Lesson 08's display helpers
+# Lessons 08-09's display helpers
 # ----------------------------------------------------------------------------------------------
 
 
@@ -265,6 +265,31 @@ def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_fini
     assert "*unresolved at three seeds*" in lesson_tables.verdict_line(tests, complete)
 
 
+def _fifteen(records: list[dict]) -> list[dict]:
+    """Records as the 15-minute recipe writes them: its number of shapes in the configuration."""
+    return [{**r, "config": {"n_shapes": ablations.runner.FIFTEEN_MINUTE_SHAPES}} for r in records]
+
+
+def test_check_fifteen_accepts_any_stage_of_the_runs_and_names_a_miscount():
+    low, high, mid = [1.0, 1.1, 1.2], [2.0, 2.1, 2.2], [1.15, 2.5, 3.0]
+    complete = _fifteen(_table3_records({"P2C-Seg": low, "P2C-Dis": high, "Chamfer-Dis": mid},
+                                        {"P2C-Seg": high, "P2C-Dis": low, "Chamfer-Dis": [2.5, 2.6, 2.7]}))
+    tests = ablations.TESTS["table3"]
+    for records in ([], complete[:4], complete):  # none, some and all of the runs finished
+        found = [ablations.verdict(t, records) for t in tests]
+        lesson_tables.check_fifteen("table3", tests, found, records)
+    found = [ablations.verdict(t, complete) for t in tests]
+    with pytest.raises(AssertionError, match="counts 6 runs, 5 were read"):
+        lesson_tables.check_fifteen("table3", tests, found, complete[1:])
+    with pytest.raises(AssertionError, match="one record per finished run"):
+        lesson_tables.check_fifteen("table3", tests, found, [*complete, complete[0]])
+    with pytest.raises(AssertionError, match="15-minute runs only"):
+        lesson_tables.check_fifteen("table3", tests, found, [{**complete[0], "config": {"n_shapes": 256}}, *complete[1:]])
+    stranger = {**complete[0], "name": "chair_P2C-Seg_seed7"}
+    with pytest.raises(AssertionError, match="does not plan"):
+        lesson_tables.check_fifteen("table3", tests, found, [stranger, *complete[1:]])
+
+
 def test_lesson_tables_list_the_fields_where_two_configurations_differ():
     a = {"steps": 600, "loss": {"lambda": 0.1, "form": "averaged"}, "seed": 0}
     b = {"steps": 2500, "loss": {"lambda": 0.1, "form": "sum"}, "seed": 0, "finetune": 500}
@@ -273,7 +298,7 @@ def test_lesson_tables_list_the_fields_where_two_configurations_differ():
 
 
 # ----------------------------------------------------------------------------------------------
-# Lesson 08's summary and the verdicts luck alone would give
+# Lessons 08-09's summaries and the verdicts luck alone would give
 # ----------------------------------------------------------------------------------------------
 
 
@@ -313,3 +338,14 @@ def test_luck_rows_count_every_test_and_match_the_counted_chance():
             assert monotone == pytest.approx(2 / __import__("math").factorial(n))
             assert 0.04 < chance < 0.05 + monotone * 0.1 + 0.015
     assert lesson_tables.luck_rows(tests, draws=500) == lesson_tables.luck_rows(tests, draws=500)  # seeded
+
+
+def test_summary_rows_cover_only_the_tables_a_lesson_passes():
+    out = lesson_tables.summary_rows({"table3": []}, {"table3": []})
+    experiments = {row[0] for rows in out.values() for row in rows}
+    assert experiments == {"Table 3"}
+    assert [row[1] for row in out["paper"]] == list(ablations.sources(ablations.TESTS["table3"]))[:1]
+    with pytest.raises(ValueError, match="same tables"):
+        lesson_tables.summary_rows({"table3": []}, {"table4": []})
+    with pytest.raises(ValueError, match="same tables"):
+        lesson_tables.summary_rows({"table9": []}, {"table9": []})
