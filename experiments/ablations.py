@@ -20,6 +20,7 @@ runs)"). Table 4's normal consistency is measured both ways (``nc_both``), as le
 from __future__ import annotations
 
 import json
+import statistics
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -308,10 +309,18 @@ def in_words(test: Test, negated: bool = False) -> str:
     return f"{where}the {metric} with {name(first)} {'lies' if negated else 'is'} {relation} that with {name(last)}"
 
 
+def training_minutes(records: Sequence[dict]) -> list[float]:
+    """The training time of each finished run, both stages, in minutes (its record's ``training`` summary)."""
+    return [(r["training"]["seconds"] + r["training"].get("finetune_seconds", 0.0)) / 60 for r in records]
+
+
 def main() -> int:
-    """Print, for each table, the finished seeds of every cell and the verdict of every test."""
+    """Print, for each table, the finished seeds of every cell and the verdict of every test; then the training
+    time of the finished runs."""
+    every = []
     for table in ABLATIONS:
         records = read_records(table)
+        every += records
         print(f"{table}: {len(records)} of {len(planned_runs(table))} runs finished")
         for row in cells(table, records):
             print("  " + ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("finished", "planned"))
@@ -319,6 +328,11 @@ def main() -> int:
         for test in TESTS[table]:
             v = verdict(test, records)
             print(f"  {describe(test)}: {word(v)}" + ("" if v["verdict"] == "pending" else f" ({v['why']})"))
+    if every:
+        minutes = sorted(training_minutes(every))
+        print(f"training time of the {len(minutes)} finished runs: {minutes[0]:.0f} to {minutes[-1]:.0f} min, "
+              f"median {statistics.median(minutes):.0f} min, quartiles {minutes[len(minutes) // 4]:.0f} and "
+              f"{minutes[(3 * len(minutes)) // 4]:.0f} min")
     return 0
 
 

@@ -36,12 +36,12 @@ from runner import (
     TRAINED_DIR,
     Run,
     Scale,
-    compactness_note,
     estimate_makespan,
     estimate_seconds,
     finished_record,
     run_all,
 )
+from compactness_scale import compactness_note
 from summaries import machine, write_results
 
 __all__ = ["categories_option", "float_list_option", "Experiment", "scale_from_args", "main"]

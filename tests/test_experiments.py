@@ -31,6 +31,7 @@ import fig10_compactness as fig10  # noqa: E402
 import fig11_point_density as fig11  # noqa: E402
 import paper_vs_code  # noqa: E402
 import command_line  # noqa: E402
+import compactness_scale  # noqa: E402
 import runner  # noqa: E402
 import segmentation_errors  # noqa: E402
 import summaries  # noqa: E402
@@ -97,14 +98,14 @@ def test_quick_scale_uses_the_tiny_network_and_fewer_points():
 
 
 def test_compactness_figures_show_why_the_literal_sum_collapses():
-    f = runner.compactness_figures("chair", n_shapes=4, n_points=128)
+    f = compactness_scale.compactness_figures("chair", n_shapes=4, n_points=128)
     lit, avg, m = f["literal"], f["averaged"], f["M"]
     for k in lit:  # the averaged form is Eq. (6) divided by M^2
         assert avg[k] == pytest.approx(lit[k] / m**2, rel=1e-9)
     # by hand: equal shares 1/k on k of M cuboids, lambda 0.1, eps 0.01
     assert lit[2] == pytest.approx(0.1 * (2 * math.sqrt(0.5 + 0.01) + (m - 2) * 0.1) ** 2)
     assert lit[2] - lit[1] > f["one_box"] > avg[2] - avg[1] > 0  # a 2nd cuboid: too dear literally, affordable averaged
-    assert "collapses" in runner.compactness_note("chair")
+    assert "collapses" in compactness_scale.compactness_note("chair")
 
 
 # ----------------------------------------------------------------------------------------------
