@@ -160,7 +160,8 @@ def compactness_loss(w: torch.Tensor, eps_sps: float = 0.01, average_over_cuboid
         eps_sps: >= 0; keeps the gradient finite when a cuboid gets no points (paper: 0.01). With 0 it is
             infinite at w_m = 0, and a softmax that underflows to 0 turns every logit's gradient into NaN.
         average_over_cuboids: the authors' code's (mean_m sqrt(w_m + eps_sps))^2, Eq. (6) / M^2: the same
-            minimiser with an M^2 times smaller gradient, so their lambda_1 = 0.1 acts like 0.1 / M^2 here.
+            minimiser with an M^2 times smaller gradient, so a weight lambda_1 on this form equals lambda_1 / M^2
+            on Eq. (6). The authors' training script applies its default weight 0.1 to this form.
 
     Returns:
         (...) one value per row: (B, M) -> (B,), (M,) -> ().

@@ -207,7 +207,7 @@ def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[st
     rows = ablations.cells(table, records)
     keys = [k for k in rows[0] if k not in _NOT_SHOWN]
     metric, scale, digits, label = metrics[0]
-    header = [*keys, "seeds", *[f"{m[3]}, 15 min" for m in metrics], f"{label}, 600 steps"]
+    header = [*keys, "seeds finished", *[f"{m[3]}, 15 min" for m in metrics], f"{label}, 600 steps"]
     body = []
     for row in rows:
         if not row["finished"]:
@@ -216,8 +216,8 @@ def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[st
         first = statistics.mean(seeds(first_look, metric, **_cell(row)))
         body.append([*(row[k] for k in keys), f"{row['finished']} of {row['planned']}", *ranges,
                      f"{scale * first:.{digits}f}"])
-    waiting = [f"{_name(row)} ({row['planned'] - row['finished']} of {row['planned']} seeds)"
-               for row in rows if row["finished"] < row["planned"]]
+    missing = {_name(row): row["planned"] - row["finished"] for row in rows if row["finished"] < row["planned"]}
+    waiting = [f"{name} ({n} {'seed' if n == 1 else 'seeds'} missing)" for name, n in missing.items()]
     line = f"finished: {len(records)} of {len(ablations.planned_runs(table))} runs"
     if waiting:
         line += "; pending: " + ("every cell" if len(waiting) == len(rows) else "; ".join(waiting))
