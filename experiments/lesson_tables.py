@@ -13,6 +13,7 @@ tests); this module only reads values and formats them.
 * :func:`config_differences` lists the fields where two run configurations differ.
 * :func:`summary_rows` builds the summary's two tables (the paper's claims, the course's tests);
   :func:`luck_rows` counts the verdicts that luck alone would settle.
+* :func:`loss_rows` lists the loss weights of groups of runs (lesson 08's losses table).
 """
 
 from __future__ import annotations
@@ -281,6 +282,40 @@ def config_differences(a: dict, b: dict) -> list[tuple[str, object, object]]:
     fa, fb = _flatten(a), _flatten(b)
     fields = [*fa, *(k for k in fb if k not in fa)]
     return [(k, fa.get(k), fb.get(k)) for k in fields if fa.get(k) != fb.get(k)]
+
+
+#: The two forms of the compactness loss, by the configuration field ``loss.compactness_average``.
+LOSS_FORMS = {True: "Eq. (6) / M^2", False: "Eq. (6) as printed"}
+
+
+def loss_rows(groups: Sequence[tuple[str, Sequence[dict]]]) -> list[list[str]]:
+    """The losses table of lesson 08: the loss weights that each group of runs trained with.
+
+    Args:
+        groups: ``(label, runs)`` pairs. A run is a results record or a release card. Its stages are its
+            ``"config"``, plus ``"finetune_config"`` (a 15-minute run's second stage) or
+            ``"initialised_from"["config"]`` (a released network's first stage) where there is one.
+
+    Returns:
+        One row per group: ``[label, compactness weights, their forms, existence weights, KL weights]``. Each
+        entry lists the distinct values over every stage of every run, comma-separated, the weights in
+        increasing order, the form Eq. (6) / M^2 first.
+    """
+    rows = []
+    for label, runs in groups:
+        configs = []
+        for run in runs:
+            configs.append(run["config"])
+            if run.get("finetune_config"):
+                configs.append(run["finetune_config"])
+            if run.get("initialised_from"):
+                configs.append(run["initialised_from"]["config"])
+        losses = [config["loss"] for config in configs]
+        weights = lambda field: ", ".join(f"{w:g}" for w in sorted({loss[field] for loss in losses}))
+        forms = sorted({loss["compactness_average"] for loss in losses}, reverse=True)
+        rows.append([label, weights("lambda_compact"), ", ".join(LOSS_FORMS[f] for f in forms),
+                     weights("lambda_exist"), weights("lambda_kl")])
+    return rows
 
 
 # ----------------------------------------------------------------------------------------------

@@ -160,9 +160,9 @@ QUICK_MODEL = dict(k=8, edge_dims=[8, 8], global_dim=16, latent_dim=8, cuboid_co
 DATA_NOTE = (
     "Data and scale differ from the paper: ours are procedural shapes (cuboidlib.shapes) at course scale "
     "(256 shapes per category, 1024 points, the small network, a few hundred to a few thousand steps of "
-    "batch 8 or 16 on a CPU); the paper trains the full network on ShapeNet (thousands of shapes, 4096 points, "
-    "1000 epochs of batch 32 on a GPU). The paper's Chamfer convention is not documented (its numbers are "
-    "scaled by an unknown factor): compare the trends between cells, not the absolute values."
+    "batch 8 or 16 on a CPU); the paper trains the full network on ShapeNet (thousands of shapes, 1000 epochs "
+    "of batch 32 on a GPU) and scores it on 4096 points. The paper's Chamfer convention is not documented (its "
+    "numbers are scaled by an unknown factor): compare the trends between cells, not the absolute values."
 )
 
 

@@ -351,3 +351,16 @@ def test_summary_rows_cover_only_the_tables_a_lesson_passes():
         lesson_tables.summary_rows({"table3": []}, {"table4": []})
     with pytest.raises(ValueError, match="same tables"):
         lesson_tables.summary_rows({"table9": []}, {"table9": []})
+
+
+def test_loss_rows_list_every_stage_of_records_and_release_cards():
+    def config(compact, average=True, exist=0.01, kl=6e-6):
+        return {"loss": {"lambda_compact": compact, "compactness_average": average, "lambda_exist": exist,
+                         "lambda_kl": kl}}
+
+    record = {"config": config(0.05), "finetune_config": config(0.2, average=False)}  # two stages
+    card = {"config": config(0.001, exist=0.02), "initialised_from": {"config": config(0.001)}}
+    one_stage = {"config": config(0.1), "finetune_config": None}
+    rows = lesson_tables.loss_rows([("runs", [record, one_stage]), ("card", [card])])
+    assert rows == [["runs", "0.05, 0.1, 0.2", "Eq. (6) / M^2, Eq. (6) as printed", "0.01", "6e-06"],
+                    ["card", "0.001", "Eq. (6) / M^2", "0.01, 0.02", "6e-06"]]
