@@ -58,8 +58,13 @@ def seeds(result_or_runs: dict | Sequence[dict], metric: str, **where) -> list[f
 
 
 def span(xs: Sequence[float], scale: float = 1.0, digits: int = 2) -> str:
-    """A cell's lowest and highest seed, "1.00 to 1.20" (the range the rule compares); "-" when there is none."""
-    return f"{scale * min(xs):.{digits}f} to {scale * max(xs):.{digits}f}" if xs else "-"
+    """A cell's lowest and highest seed, "1.00 to 1.20" (the range the rule compares); "1.10 (1 seed)" for a single
+    seed; "-" when there is none."""
+    if not xs:
+        return "-"
+    if len(xs) == 1:
+        return f"{scale * xs[0]:.{digits}f} (1 seed)"
+    return f"{scale * min(xs):.{digits}f} to {scale * max(xs):.{digits}f}"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -197,7 +202,7 @@ def _name(row: dict) -> str:
 
 def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[str, float, int, str]],
                  first_look: Sequence[dict]) -> tuple[list[str], list[list[str]], str]:
-    """A 15-minute table: (header, one row per cell with a finished seed, a line on what is finished and pending).
+    """A 15-minute table: (header, one row per planned cell, a line on what is finished and pending).
 
     Args:
         table: "table3", "table4" or "table6".
@@ -210,9 +215,7 @@ def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[st
     metric, scale, digits, label = metrics[0]
     header = [*keys, "seeds finished", *[f"{m[3]}, 15 min" for m in metrics], f"{label}, 600 steps"]
     body = []
-    for row in rows:
-        if not row["finished"]:
-            continue
+    for row in rows:  # a cell with no finished seed shows "-" in its 15-minute columns
         ranges = [span(seeds(records, m, **_cell(row)), s, d) for m, s, d, _ in metrics]
         first = statistics.mean(seeds(first_look, metric, **_cell(row)))
         body.append([*(row[k] for k in keys), f"{row['finished']} of {row['planned']}", *ranges,
@@ -227,10 +230,9 @@ def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[st
 
 def show_fifteen(table: str, records: Sequence[dict], metrics: Sequence[tuple[str, float, int, str]],
                  first_look: Sequence[dict]) -> None:
-    """Display :func:`fifteen_rows`: the table when a cell has a finished seed, then the line on what is pending."""
+    """Display :func:`fifteen_rows`: the table, then the line on what is finished and pending."""
     header, body, line = fifteen_rows(table, records, metrics, first_look)
-    if body:
-        show_table(header, body)
+    show_table(header, body)
     print(line)
 
 

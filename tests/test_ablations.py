@@ -196,6 +196,7 @@ def test_lesson_tables_read_one_cell_and_its_seeds_range():
         lesson_tables.value(result, "cd", M=16)
     assert lesson_tables.seeds(result, "cd", M=8) == pytest.approx([0.4, 0.5, 0.6])
     assert lesson_tables.span([0.4, 0.6, 0.5], 1000, 1) == "400.0 to 600.0" and lesson_tables.span([]) == "-"
+    assert lesson_tables.span([0.00104], 1000) == "1.04 (1 seed)"
 
 
 def test_lesson_tables_write_the_verdicts_in_words():
@@ -260,7 +261,8 @@ def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_fini
         "P2C-Seg gives the highest mIoU: *pending (0 of 9 runs)*.")
     header, rows, line = lesson_tables.fifteen_rows("table3", complete[3:], [("cd", 1, 2, "CD")], complete)
     assert header == ["variant", "seeds finished", "CD, 15 min", "CD, 600 steps"]
-    assert [row[:2] for row in rows] == [["P2C-Dis", "3 of 3"], ["Chamfer-Dis", "3 of 3"]]
+    assert [row[:2] for row in rows] == [["P2C-Dis", "3 of 3"], ["Chamfer-Dis", "3 of 3"], ["P2C-Seg", "0 of 3"]]
+    assert rows[2][2] == "-" and rows[2][3] == "1.10", "a cell with no finished seed: no range, its 600-step mean"
     assert line == "finished: 6 of 9 runs; pending: P2C-Seg (3 seeds missing)"
     *_, line = lesson_tables.fifteen_rows("table3", complete[1:], [("cd", 1, 2, "CD")], complete)
     assert line == "finished: 8 of 9 runs; pending: P2C-Seg (1 seed missing)"
