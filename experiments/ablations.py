@@ -4,14 +4,14 @@
 finished run leaves ``results/runs_15min/<script>_15min/<stamp>/<run>/record.json``. This module reads whatever
 records are there and applies the tests the README states before the runs:
 
-* two cells **differ** when their seeds do not overlap: every seed of one lies below every seed of the other (were
+* two cells **differ** when their runs do not overlap: every seed of one lies below every seed of the other (were
   the cells the same, three seeds each would do this by chance with probability 2/20 = 0.1);
 * a **trend** over M holds when the means are monotone and the ends (M = 8 against M = 24) differ.
 
 The same tests apply to the 600-step runs of the same cells (``results/<script>.json``, the first look), and the
 same rule to Table 5's 15-minute runs (``results/table5_compactness_15min.json``), whose tests were written after them.
 
-A test's verdict is "holds", "fails" or "unresolved at three seeds" (the seeds overlap): results. While some of
+A test's verdict is "holds", "fails" or "unresolved at three seeds" (the runs overlap): results. While some of
 its runs have not finished, it is "pending", which is no result at all (:func:`word` writes "pending (k of n
 runs)"). Table 4's normal consistency is measured both ways (``nc_both``), as lesson 09 reads it. Records written before the rename of ``flatness`` are read with today's metric names
 (:func:`summaries.result_rows`).
@@ -190,21 +190,21 @@ def _compare(test: Test, values: list[list[float]]) -> tuple[str, str]:
         sign = -1 if test.kind == "falls" else 1
         monotone = all(sign * (b - a) > 0 for a, b in zip(means, means[1:]))
         if side == -sign:
-            return "fails", "the ends differ the other way: their seeds do not overlap"
+            return "fails", "the ends differ the other way: their runs do not overlap"
         if monotone and side == sign:
-            return "holds", "the means are monotone and the ends' seeds do not overlap"
-        return "unresolved at three seeds", "the ends' seeds overlap" if monotone else "the means are not monotone"
+            return "holds", "the means are monotone and the ends' runs do not overlap"
+        return "unresolved at three seeds", "the ends' runs overlap" if monotone else "the means are not monotone"
     side = apart(values[0], values[1])
     wanted = {"lower": -1, "higher": 1, "not_higher": 1, "not_lower": -1}[test.kind]
     if test.kind.startswith("not_"):
         if side == wanted:
-            return "fails", "the seeds do not overlap, in the direction the claim rules out"
+            return "fails", "the runs do not overlap, in the direction the claim rules out"
         return "holds", "no difference in the direction the claim rules out"
     if side == wanted:
-        return "holds", "the seeds do not overlap"
+        return "holds", "the runs do not overlap"
     if side == -wanted:
-        return "fails", "the seeds do not overlap, the other way"
-    return "unresolved at three seeds", "the seeds overlap"
+        return "fails", "the runs do not overlap, the other way"
+    return "unresolved at three seeds", "the runs overlap"
 
 
 def verdict(test: Test, records: Sequence[dict], seeds: int = 3) -> dict:

@@ -122,7 +122,7 @@ def plain_log(ax) -> None:
 
 
 def said(v: dict) -> str:
-    """A verdict in a table's words; an unresolved one says why ("unresolved at three seeds: the seeds overlap")."""
+    """A verdict in a table's words; an unresolved one says why ("unresolved at three seeds: the runs overlap")."""
     return ablations.word(v) + (f": {v['why']}" if v["verdict"] == "unresolved at three seeds" else "")
 
 
@@ -168,7 +168,7 @@ def verdict_sentence(verdicts: Sequence[tuple]) -> str:
              else "No test holds by the rule."]
     if fails:
         parts.append(f"{'This test fails' if n_fails == 1 else 'These tests fail'}, "
-                     f"the seeds lying apart the other way: {fails}.")
+                     f"the runs lying apart the other way: {fails}.")
     rest = {w: sum(max(len(x), 1) for x in found.values()) for w, found in groups.items() if w not in ("holds", "fails")}
     if rest:
         counted = [f"{n} {'is' if n == 1 and i == 0 else 'are' if i == 0 else ''} {w}".replace("  ", " ")

@@ -147,7 +147,7 @@ def test_the_same_tests_apply_to_other_categories_and_to_table5():
     runs = [_record(f"l{w}_s{s}", {"lambda_1": w, "form": "averaged", "seed": s}, n_ac=10 - 20 * w + s / 10,
                     cd=1 + w + s / 100, miou=0.8) for w in table5.LAMBDAS for s in range(3)]
     words = [ablations.verdict(t, runs)["verdict"] for t in ablations.TESTS["table5"]]
-    assert words == ["holds", "holds", "unresolved at three seeds"], "mIoU tied: the seeds overlap"
+    assert words == ["holds", "holds", "unresolved at three seeds"], "mIoU tied: the runs overlap"
 
 
 def test_a_test_describes_itself_in_one_line():
@@ -203,13 +203,13 @@ def test_lesson_tables_write_the_verdicts_in_words():
     holds, fails = {"verdict": "holds"}, {"verdict": "fails"}
     open_ = {"verdict": "unresolved at three seeds"}
     assert lesson_tables.verdict_sentence([("A", holds), ("B", fails), ("C", open_), ("D", open_)]) == (
-        "By the rule, this holds: A. This test fails, the seeds lying apart the other way: B. "
+        "By the rule, this holds: A. This test fails, the runs lying apart the other way: B. "
         "Of the other tests, 2 are unresolved at three seeds.")
     assert lesson_tables.verdict_sentence([("A", holds), ("B", holds)]) == "By the rule, these hold: A; B."
     assert lesson_tables.verdict_sentence([("A", open_)]).startswith("No test holds by the rule.")
     grouped = [("a is below b", "chairs", holds), ("a is below c", "airplanes", fails), ("a is below c", "tables", fails)]
     assert lesson_tables.verdict_sentence(grouped) == (
-        "By the rule, this holds: on chairs, a is below b. These tests fail, the seeds lying apart the other way: "
+        "By the rule, this holds: on chairs, a is below b. These tests fail, the runs lying apart the other way: "
         "on airplanes and tables, a is below c.")
 
 
@@ -219,7 +219,7 @@ def test_a_failed_test_is_stated_as_what_was_found():
     sentence = lesson_tables.verdict_sentence([(seg_vs_dis, "chairs", holds), (seg_vs_chamfer, "airplanes", fails),
                                                (seg_vs_chamfer, "tables", fails)])
     assert sentence == ("By the rule, this holds: on chairs, P2C-Seg's Chamfer distance is below P2C-Dis's. "
-                        "These tests fail, the seeds lying apart the other way: on airplanes and tables, "
+                        "These tests fail, the runs lying apart the other way: on airplanes and tables, "
                         "P2C-Seg's Chamfer distance lies above Chamfer-Dis's.")
     negated = [ablations.in_words(t, negated=True) for t in (ablations.table4_tests()[1], ablations.table4_tests()[2],
                                                             ablations.table6_tests()[0])]
