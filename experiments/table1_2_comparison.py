@@ -103,7 +103,7 @@ def report(records: list[dict], scale: runner.Scale, args: argparse.Namespace) -
         rows.append([row["category"], row["method"], runner.mean_sd(row, "cd", 1000), runner.paper_value(row["paper_cd"]),
                      runner.mean_sd(row, "miou", 100, 1), runner.paper_value(row["paper_miou_percent"], 1),
                      runner.mean_sd(row, "nc"), runner.mean_sd(row, "n_ac", 1, 2)])
-    headers = ["category", "method", "CD x1000 (ours)", "CD (paper, Ours)", "mIoU % (ours)", "mIoU (paper, Ours)",
+    headers = ["category", "method", "CD x1000 (ours)", "CD (paper's net)", "mIoU % (ours)", "mIoU (paper's net)",
                "NC", "N_AC"]
     others = [[name, *(runner.paper_value(PAPER["cd"].get(name, {}).get(c)) for c in CATEGORIES),
                *(runner.paper_value(PAPER["miou"].get(name, {}).get(c), 1) for c in CATEGORIES[:3])]
