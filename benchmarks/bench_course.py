@@ -1,6 +1,6 @@
 """Time the whole course as a learner runs it: every lesson top to bottom in a fresh kernel.
 
-Each notebook in notebooks/ (the lessons and the optional appendix 04b; not the solutions) is executed from a fresh Python kernel (nbclient, the engine of
+Each notebook in notebooks/ (the lessons and the optional appendices 04b and 09b; not the solutions) is executed from a fresh Python kernel (nbclient, the engine of
 ``jupyter nbconvert --execute``) in its own folder, as the learner opens it. The committed files
 are not touched: the executed copies are discarded. Prints each lesson's wall time, then the total.
 Lesson 04 leaves its training run in ``notebooks/runs/lesson04_chair/`` and the appendix 04b reads it back,
@@ -43,7 +43,7 @@ def main() -> None:
     if runs.exists() and not args.reuse_runs:
         raise SystemExit(f"{runs} holds the training runs of an earlier execution, which the lessons would read back "
                          "instead of training; move it away to time a first pass, or pass --reuse-runs")
-    paths = sorted(NOTEBOOKS.glob("[0-9][0-9]*_*.ipynb"))  # the lessons and the appendix 04b, not solutions/
+    paths = sorted(NOTEBOOKS.glob("[0-9][0-9]*_*.ipynb"))  # the lessons and the appendices, not solutions/
     if args.lessons:
         paths = [p for p in paths if p.name.startswith(tuple(args.lessons))]
     if not paths:
