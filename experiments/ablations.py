@@ -4,8 +4,8 @@
 finished run leaves ``results/runs_15min/<script>_15min/<stamp>/<run>/record.json``. This module reads whatever
 records are there and applies the tests the README states before the runs:
 
-* two cells **differ** when their runs do not overlap: every seed of one lies below every seed of the other (were
-  the cells the same, three seeds each would do this by chance with probability 2/20 = 0.1);
+* two cells **differ** when their runs do not overlap: every run of one lies below every run of the other (were
+  the cells the same, three runs each would do this by chance with probability 2/20 = 0.1);
 * a **trend** over M holds when the means are monotone and the ends (M = 8 against M = 24) differ.
 
 The same tests apply to the 600-step runs of the same cells (``results/<script>.json``, the first look), and the
