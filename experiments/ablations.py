@@ -330,9 +330,9 @@ def main() -> int:
             print(f"  {describe(test)}: {word(v)}" + ("" if v["verdict"] == "pending" else f" ({v['why']})"))
     if every:
         minutes = sorted(training_minutes(every))
+        q1, median, q3 = statistics.quantiles(minutes, n=4) if len(minutes) > 1 else minutes * 3
         print(f"training time of the {len(minutes)} finished runs: {minutes[0]:.0f} to {minutes[-1]:.0f} min, "
-              f"median {statistics.median(minutes):.0f} min, quartiles {minutes[len(minutes) // 4]:.0f} and "
-              f"{minutes[(3 * len(minutes)) // 4]:.0f} min")
+              f"median {median:.0f} min, quartiles {q1:.0f} and {q3:.0f} min")
     return 0
 
 
