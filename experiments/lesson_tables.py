@@ -208,16 +208,17 @@ def fifteen_rows(table: str, records: Sequence[dict], metrics: Sequence[tuple[st
         table: "table3", "table4" or "table6".
         records: its finished 15-minute records (:func:`ablations.read_records`).
         metrics: (metric, scale, digits, label) of each column; each cell gives its seeds' range.
-        first_look: the 600-step runs of the same cells; the first metric's 600-step mean closes each row.
+        first_look: the 600-step runs of the same cells; the first metric's 600-step median closes each row (a
+            median, since one far run can carry a mean of three).
     """
     rows = ablations.cells(table, records)
     keys = [k for k in rows[0] if k not in _NOT_SHOWN]
     metric, scale, digits, label = metrics[0]
-    header = [*keys, "seeds finished", *[f"{m[3]}, 15 min" for m in metrics], f"{label}, 600 steps"]
+    header = [*keys, "seeds finished", *[f"{m[3]}, 15 min" for m in metrics], f"{label}, 600 steps (median)"]
     body = []
     for row in rows:  # a cell with no finished seed shows "-" in its 15-minute columns
         ranges = [span(seeds(records, m, **_cell(row)), s, d) for m, s, d, _ in metrics]
-        first = statistics.mean(seeds(first_look, metric, **_cell(row)))
+        first = statistics.median(seeds(first_look, metric, **_cell(row)))
         body.append([*(row[k] for k in keys), f"{row['finished']} of {row['planned']}", *ranges,
                      f"{scale * first:.{digits}f}"])
     missing = {_name(row): row["planned"] - row["finished"] for row in rows if row["finished"] < row["planned"]}

@@ -260,9 +260,10 @@ def test_lesson_tables_give_a_pending_verdict_line_and_table_until_the_runs_fini
         "**Verdict at the 15-minute scale:** P2C-Seg gives the lowest Chamfer distance: *pending (0 of 9 runs)*; "
         "P2C-Seg gives the highest mIoU: *pending (0 of 9 runs)*.")
     header, rows, line = lesson_tables.fifteen_rows("table3", complete[3:], [("cd", 1, 2, "CD")], complete)
-    assert header == ["variant", "seeds finished", "CD, 15 min", "CD, 600 steps"]
+    assert header == ["variant", "seeds finished", "CD, 15 min", "CD, 600 steps (median)"]
     assert [row[:2] for row in rows] == [["P2C-Dis", "3 of 3"], ["Chamfer-Dis", "3 of 3"], ["P2C-Seg", "0 of 3"]]
-    assert rows[2][2] == "-" and rows[2][3] == "1.10", "a cell with no finished seed: no range, its 600-step mean"
+    assert rows[2][2] == "-" and rows[2][3] == "1.10", "a cell with no finished seed: no range, its 600-step median"
+    assert rows[1][3] == "2.50", "the 600-step median of 1.15, 2.5, 3.0, not their mean"
     assert line == "finished: 6 of 9 runs; pending: P2C-Seg (3 seeds missing)"
     *_, line = lesson_tables.fifteen_rows("table3", complete[1:], [("cd", 1, 2, "CD")], complete)
     assert line == "finished: 8 of 9 runs; pending: P2C-Seg (1 seed missing)"
