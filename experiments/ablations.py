@@ -266,7 +266,7 @@ def judge(tests: Sequence[Test], records: Sequence[dict], seeds: int = 3) -> dic
 
 
 def describe(test: Test) -> str:
-    """What a test compares, in one line: "cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < 0",
+    """What a test compares, in one line: "cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < sigma_s 0",
     "cd falls over M 8 ... 24"."""
     first, last = test.cells[0], test.cells[-1]
     varied = [k for k in first if first[k] != last.get(k)]
@@ -275,9 +275,8 @@ def describe(test: Test) -> str:
     if test.kind in ("falls", "grows"):
         return f"{test.metric}{where} {test.kind[:-1]}s over {' '.join(varied)} {first[varied[0]]:g} ... {last[varied[0]]:g}"
     sign = {"lower": "<", "higher": ">", "not_higher": "not >", "not_lower": "not <"}[test.kind]
-    name = lambda cell: " ".join(f"{cell[k]:g}" if isinstance(cell[k], float) else str(cell[k]) for k in varied)  # noqa: E731
-    label = "" if all(isinstance(first[k], str) for k in varied) else " ".join(varied) + " "
-    return f"{test.metric}{where}: {label}{name(first)} {sign} {name(last)}"
+    name = lambda cell: " ".join(str(cell[k]) if isinstance(cell[k], str) else f"{k} {cell[k]:g}" for k in varied)  # noqa: E731
+    return f"{test.metric}{where}: {name(first)} {sign} {name(last)}"
 
 
 #: A metric's name in a sentence.

@@ -153,7 +153,7 @@ def test_the_same_tests_apply_to_other_categories_and_to_table5():
 def test_a_test_describes_itself_in_one_line():
     lines = [ablations.describe(t) for t in (ablations.table3_tests()[0], ablations.table4_tests()[0],
                                                ablations.table6_tests()[1])]
-    assert lines == ["cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < 0", "n_ac grows over M 8 ... 24"]
+    assert lines == ["cd: P2C-Seg < P2C-Dis", "cd at sigma_n 0.03: sigma_s 0.05 < sigma_s 0", "n_ac grows over M 8 ... 24"]
 
 
 def test_ablation_reader_rejects_bad_arguments(tmp_path):
