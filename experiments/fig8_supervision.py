@@ -23,7 +23,8 @@ PAPER = {"source": "Fig. 8 of Yang & Chen, SIGGRAPH 2021 (a figure; the numbers 
 
 
 def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run]:
-    return table3.build_runs(scale, argparse.Namespace(categories=("chair",), lambda_compact=0.0))
+    return table3.build_runs(scale, argparse.Namespace(categories=("chair",), lambda_compact=0.0,
+                                                      variants=tuple(table3.VARIANTS), predicted_positions=False))
 
 
 def report(records: list[dict], scale: runner.Scale, args: argparse.Namespace) -> tuple[list[dict], str]:

@@ -15,6 +15,13 @@ KL terms stay so that the existence head learns which cuboids are used (only exi
 scored). Scores: Chamfer distance and mIoU on the test split; the variants without a segmentation
 branch segment every point by its nearest existing cuboid under their own distance, as the paper
 does for its Fig. 8.
+
+The cuboids' positions: the course's recipe places each cuboid at the centroid of the points the segmentation
+branch allocates to it (``centers_from_allocation``, the authors' code). P2C-Dis and Chamfer-Dis replace that
+allocation in their reconstruction loss, but under the recipe the branch still places their cuboids, so it
+still trains through their positions. ``--predicted-positions`` gives these two variants the predicted
+translation t_m instead, so that they use no segmentation branch at all (the paper's variants); P2C-Seg keeps
+the recipe's positions. ``--variants`` trains a subset of the three.
 """
 
 from __future__ import annotations
@@ -47,6 +54,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated subset of chair,table,airplane (default: all three)")
     p.add_argument("--lambda-compact", type=float, default=0.0,
                    help="lambda_1 of all three variants (default 0: the paper trains them with L_recons only)")
+    p.add_argument("--variants", type=command_line.categories_option(tuple(VARIANTS)), default=tuple(VARIANTS),
+                   help="comma-separated subset of P2C-Dis,Chamfer-Dis,P2C-Seg (default: all three)")
+    p.add_argument("--predicted-positions", action="store_true",
+                   help="P2C-Dis and Chamfer-Dis place their cuboids at the predicted translations t_m, not at the "
+                        "centroids of the segmentation branch's allocation (the recipe's), so that no segmentation "
+                        "branch shapes them")
 
 
 def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run]:
@@ -54,7 +67,10 @@ def build_runs(scale: runner.Scale, args: argparse.Namespace) -> list[runner.Run
         raise ValueError(f"--lambda-compact must be a non-negative number, got {args.lambda_compact}")
     runs = []
     for category in args.categories:
-        for variant, (loss, segmentation) in VARIANTS.items():
+        for variant in args.variants:
+            loss, segmentation = VARIANTS[variant]
+            if args.predicted_positions and segmentation is not None:  # a variant without a segmentation branch
+                loss = {**loss, "centers_from_allocation": False}
             for seed in scale.seeds:
                 changes = {"loss": {**loss, "lambda_compact": args.lambda_compact}}
                 config = scale.config(category, seed, **changes)

@@ -222,6 +222,21 @@ def test_table3_runs_the_three_supervisions_on_three_categories():
                                                                                                    "nearest_surface")
 
 
+def test_table3_places_the_cuboids_of_the_variants_without_a_segmentation_branch_as_asked():
+    """Under the recipe every variant takes the centroids of the segmentation branch's allocation as positions;
+    --predicted-positions gives P2C-Dis and Chamfer-Dis the predicted translation, and P2C-Seg keeps the recipe's."""
+    _, runs = _runs(table3, "--categories", "chair")
+    assert {r.key["variant"]: r.config.loss_config.centers_from_allocation for r in runs} == {
+        "P2C-Dis": True, "Chamfer-Dis": True, "P2C-Seg": True}, "the recipe's positions, as the committed runs"
+    _, runs = _runs(table3, "--categories", "chair", "--predicted-positions")
+    assert {r.key["variant"]: r.config.loss_config.centers_from_allocation for r in runs} == {
+        "P2C-Dis": False, "Chamfer-Dis": False, "P2C-Seg": True}
+    _, subset = _runs(table3, "--variants", "P2C-Dis,Chamfer-Dis", "--predicted-positions", "--seeds", "3")
+    assert _keys(subset, "variant") == {("P2C-Dis",), ("Chamfer-Dis",)} and len(subset) == 3 * 2 * 3
+    loss = subset[0].config.loss_config
+    assert (loss.allocation, loss.centers_from_allocation) == ("nearest_cuboid", False)
+
+
 def test_table4_crosses_four_noise_levels_with_four_distances():
     _, runs = _runs(table4)
     assert len(runs) == 16 and {r.config.category for r in runs} == {"chair"}
@@ -629,6 +644,7 @@ def test_table5_quick_runs_in_worker_processes(tmp_path):
         (table12, ["--checkpoints", "/nonexistent", "--seeds", "2"], "takes no --seeds"),
         (fig11, ["--quick", "--shape", "5"], "--shape 5 is out of range: the test split has 2 shapes"),
         (table3, ["--lambda-compact", "-1"], "--lambda-compact must be a non-negative number"),
+        (table3, ["--variants", "P2C-Seg,Seg"], "argument --variants: expected a comma-separated list"),
     ],
 )
 def test_bad_arguments_give_one_line_errors(module, argv, match, capsys):
